@@ -1,0 +1,539 @@
+//! The hemisphere table that holds tabulated NDFs.
+//!
+//! Cells are rings of constant polar angle split into `n_phi` equal azimuth
+//! sectors, so a rotation about the normal by a multiple of `2 pi / n_phi` is
+//! a cyclic shift of every ring (synthesis relies on this). Ring edges are
+//! warped, `theta_k = (k / n_theta)^2 * pi / 2`, like the RGL tables
+//! (Dupuy and Jakob 2018): rings are narrow near the normal, where sharp lobes
+//! live, and wide near the horizon, where microfacet normals are rare.
+//! The default 32 x 96 = 3,072 cells is the talk's table size.
+//!
+//! Cell values are cosine-weighted cell averages of `D`, so
+//! `sum(D_c * cos_measure_c) = integral of D cos dw` exactly for a table made
+//! from an analytic NDF, and the normalisation `integral D cos dw = 1` is a
+//! finite sum. Between cell centres the table interpolates bilinearly in
+//! `(sqrt(2 theta / pi), phi)`.
+
+use std::f32::consts::{FRAC_PI_2, TAU};
+
+use glam::Vec3;
+use serde::{Deserialize, Serialize};
+use thiserror::Error;
+
+use crate::frame;
+
+/// Errors from building or reading a table.
+#[derive(Debug, Error, PartialEq)]
+pub enum TableError {
+    #[error(
+        "table grid {n_theta} x {n_phi} is not usable: need 2..=512 rings and 4..=4096 sectors"
+    )]
+    BadGrid { n_theta: u32, n_phi: u32 },
+    #[error("table holds {got} values but its {n_theta} x {n_phi} grid needs {want}")]
+    WrongLength {
+        n_theta: u32,
+        n_phi: u32,
+        got: usize,
+        want: usize,
+    },
+    #[error(
+        "table value at cell {index} is {value}, but NDF values must be finite and non-negative"
+    )]
+    BadValue { index: usize, value: f32 },
+}
+
+/// Geometry of a hemisphere table: `n_theta` warped rings by `n_phi` sectors.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+pub struct NdfGrid {
+    pub n_theta: u32,
+    pub n_phi: u32,
+}
+
+impl Default for NdfGrid {
+    fn default() -> Self {
+        Self::DEFAULT
+    }
+}
+
+impl NdfGrid {
+    /// The talk's 3,072-cell table.
+    pub const DEFAULT: NdfGrid = NdfGrid {
+        n_theta: 32,
+        n_phi: 96,
+    };
+
+    pub fn new(n_theta: u32, n_phi: u32) -> Result<Self, TableError> {
+        if !(2..=512).contains(&n_theta) || !(4..=4096).contains(&n_phi) {
+            return Err(TableError::BadGrid { n_theta, n_phi });
+        }
+        Ok(Self { n_theta, n_phi })
+    }
+
+    /// Number of cells.
+    pub fn len(&self) -> usize {
+        (self.n_theta * self.n_phi) as usize
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    #[inline]
+    pub fn index(&self, t: usize, p: usize) -> usize {
+        t * self.n_phi as usize + p
+    }
+
+    /// Azimuth width of a sector.
+    #[inline]
+    pub fn dphi(&self) -> f32 {
+        TAU / self.n_phi as f32
+    }
+
+    /// Polar angle of ring edge `k` in `0..=n_theta`.
+    #[inline]
+    pub fn theta_edge(&self, k: usize) -> f32 {
+        let u = k as f32 / self.n_theta as f32;
+        u * u * FRAC_PI_2
+    }
+
+    /// Polar angle of the centre of ring `t` (centre in the warped coordinate).
+    #[inline]
+    pub fn theta_center(&self, t: usize) -> f32 {
+        let u = (t as f32 + 0.5) / self.n_theta as f32;
+        u * u * FRAC_PI_2
+    }
+
+    /// Azimuth of the centre of sector `p`.
+    #[inline]
+    pub fn phi_center(&self, p: usize) -> f32 {
+        (p as f32 + 0.5) * self.dphi()
+    }
+
+    /// Unit direction through the centre of cell `(t, p)`.
+    pub fn direction(&self, t: usize, p: usize) -> Vec3 {
+        frame::spherical(self.theta_center(t), self.phi_center(p))
+    }
+
+    /// `integral of cos(theta) dw` over one cell of ring `t`.
+    pub fn cos_measure(&self, t: usize) -> f32 {
+        let (s0, s1) = (self.theta_edge(t).sin(), self.theta_edge(t + 1).sin());
+        0.5 * self.dphi() * (s1 * s1 - s0 * s0)
+    }
+
+    /// Solid angle of one cell of ring `t`.
+    pub fn solid_angle(&self, t: usize) -> f32 {
+        self.dphi() * (self.theta_edge(t).cos() - self.theta_edge(t + 1).cos())
+    }
+
+    /// Continuous table coordinates of a direction: `(ring, sector)` measured
+    /// in cells, so cell `(t, p)` spans `[t, t+1) x [p, p+1)`.
+    pub fn coords(&self, h: Vec3) -> (f32, f32) {
+        let theta = frame::sin2_theta(h).sqrt().atan2(h.z).clamp(0.0, FRAC_PI_2);
+        let u = (theta / FRAC_PI_2).sqrt() * self.n_theta as f32;
+        let p = frame::phi(h) / self.dphi();
+        (u, p)
+    }
+
+    /// The cell holding a direction at or above the horizon.
+    pub fn cell(&self, h: Vec3) -> Option<(usize, usize)> {
+        if h.z < 0.0 {
+            return None;
+        }
+        let (u, p) = self.coords(h);
+        let t = (u as usize).min(self.n_theta as usize - 1);
+        let p = (p as usize) % self.n_phi as usize;
+        Some((t, p))
+    }
+}
+
+/// One bit per cell: which cells of a table were observed.
+#[derive(Clone, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+pub struct Coverage {
+    len: usize,
+    bits: Vec<u64>,
+}
+
+impl Coverage {
+    pub fn empty(len: usize) -> Self {
+        Self {
+            len,
+            bits: vec![0; len.div_ceil(64)],
+        }
+    }
+
+    pub fn full(len: usize) -> Self {
+        let mut c = Self::empty(len);
+        for i in 0..len {
+            c.set(i, true);
+        }
+        c
+    }
+
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    #[inline]
+    pub fn get(&self, i: usize) -> bool {
+        (self.bits[i / 64] >> (i % 64)) & 1 == 1
+    }
+
+    #[inline]
+    pub fn set(&mut self, i: usize, on: bool) {
+        let (w, b) = (i / 64, i % 64);
+        if on {
+            self.bits[w] |= 1 << b;
+        } else {
+            self.bits[w] &= !(1 << b);
+        }
+    }
+
+    /// Number of covered cells.
+    pub fn count(&self) -> usize {
+        self.bits.iter().map(|w| w.count_ones() as usize).sum()
+    }
+
+    /// Number of cells covered in both.
+    pub fn and_count(&self, other: &Coverage) -> usize {
+        self.bits
+            .iter()
+            .zip(&other.bits)
+            .map(|(a, b)| (a & b).count_ones() as usize)
+            .sum()
+    }
+
+    /// Number of cells covered in `other` but not in `self`.
+    pub fn gain_count(&self, other: &Coverage) -> usize {
+        self.bits
+            .iter()
+            .zip(&other.bits)
+            .map(|(a, b)| (!a & b).count_ones() as usize)
+            .sum()
+    }
+
+    pub fn union_with(&mut self, other: &Coverage) {
+        for (a, b) in self.bits.iter_mut().zip(&other.bits) {
+            *a |= b;
+        }
+    }
+
+    pub fn intersect_with(&mut self, other: &Coverage) {
+        for (a, b) in self.bits.iter_mut().zip(&other.bits) {
+            *a &= b;
+        }
+    }
+
+    /// Iterator over the indices of covered cells.
+    pub fn iter_set(&self) -> impl Iterator<Item = usize> + '_ {
+        (0..self.len).filter(move |&i| self.get(i))
+    }
+
+    /// Raw words (for serialisation).
+    pub fn words(&self) -> &[u64] {
+        &self.bits
+    }
+}
+
+/// A tabulated NDF: one value per cell plus the cells that were observed.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct NdfTable {
+    grid: NdfGrid,
+    values: Vec<f32>,
+    coverage: Coverage,
+}
+
+impl NdfTable {
+    /// An all-zero table with nothing observed.
+    pub fn zeros(grid: NdfGrid) -> Self {
+        Self {
+            grid,
+            values: vec![0.0; grid.len()],
+            coverage: Coverage::empty(grid.len()),
+        }
+    }
+
+    /// A table from values, checking length and that every value is finite
+    /// and non-negative.
+    pub fn from_values(
+        grid: NdfGrid,
+        values: Vec<f32>,
+        coverage: Coverage,
+    ) -> Result<Self, TableError> {
+        if values.len() != grid.len() || coverage.len() != grid.len() {
+            return Err(TableError::WrongLength {
+                n_theta: grid.n_theta,
+                n_phi: grid.n_phi,
+                got: values.len().min(coverage.len()),
+                want: grid.len(),
+            });
+        }
+        if let Some((index, &value)) = values
+            .iter()
+            .enumerate()
+            .find(|(_, v)| !v.is_finite() || **v < 0.0)
+        {
+            return Err(TableError::BadValue { index, value });
+        }
+        Ok(Self {
+            grid,
+            values,
+            coverage,
+        })
+    }
+
+    /// Cosine-weighted cell averages of `f`, with `sub x sub` stratified
+    /// samples per cell placed uniformly in `(sin^2 theta, phi)` (uniform in
+    /// the cosine measure), and every cell marked observed.
+    pub fn from_fn(grid: NdfGrid, sub: usize, f: impl Fn(Vec3) -> f32) -> Self {
+        let sub = sub.max(1);
+        let mut values = vec![0.0; grid.len()];
+        for t in 0..grid.n_theta as usize {
+            let (s0, s1) = (
+                grid.theta_edge(t).sin().powi(2),
+                grid.theta_edge(t + 1).sin().powi(2),
+            );
+            for p in 0..grid.n_phi as usize {
+                let mut acc = 0.0f64;
+                for a in 0..sub {
+                    let s2 = s0 + (s1 - s0) * (a as f32 + 0.5) / sub as f32;
+                    let (st, ct) = (s2.sqrt(), (1.0 - s2).max(0.0).sqrt());
+                    for b in 0..sub {
+                        let ph = (p as f32 + (b as f32 + 0.5) / sub as f32) * grid.dphi();
+                        let h = Vec3::new(st * ph.cos(), st * ph.sin(), ct);
+                        let v = f(h);
+                        if v.is_finite() && v > 0.0 {
+                            acc += v as f64;
+                        }
+                    }
+                }
+                values[grid.index(t, p)] = (acc / (sub * sub) as f64) as f32;
+            }
+        }
+        Self {
+            grid,
+            values,
+            coverage: Coverage::full(grid.len()),
+        }
+    }
+
+    /// Resample any NDF into a table (cell averages, fully observed).
+    pub fn from_ndf(grid: NdfGrid, ndf: &impl super::Ndf) -> Self {
+        Self::from_fn(grid, 6, |h| ndf.d(h))
+    }
+
+    pub fn grid(&self) -> NdfGrid {
+        self.grid
+    }
+
+    pub fn values(&self) -> &[f32] {
+        &self.values
+    }
+
+    pub fn values_mut(&mut self) -> &mut [f32] {
+        &mut self.values
+    }
+
+    pub fn coverage(&self) -> &Coverage {
+        &self.coverage
+    }
+
+    pub fn coverage_mut(&mut self) -> &mut Coverage {
+        &mut self.coverage
+    }
+
+    pub fn into_parts(self) -> (NdfGrid, Vec<f32>, Coverage) {
+        (self.grid, self.values, self.coverage)
+    }
+
+    #[inline]
+    pub fn at(&self, t: usize, p: usize) -> f32 {
+        self.values[self.grid.index(t, p)]
+    }
+
+    /// `integral of D cos dw` by the table's own quadrature.
+    pub fn integral_cos(&self) -> f32 {
+        let n_phi = self.grid.n_phi as usize;
+        let mut acc = 0.0f64;
+        for t in 0..self.grid.n_theta as usize {
+            let ring: f64 = self.values[t * n_phi..(t + 1) * n_phi]
+                .iter()
+                .map(|&v| v as f64)
+                .sum();
+            acc += ring * self.grid.cos_measure(t) as f64;
+        }
+        acc as f32
+    }
+
+    /// Scale so that `integral D cos dw = 1`; returns the integral before
+    /// scaling (the fitter's `k_s`). A table whose integral is below
+    /// [`MIN_NORMALISABLE`] is left unchanged and 0 is returned.
+    pub fn normalize(&mut self) -> f32 {
+        let k = self.integral_cos();
+        if !(k > MIN_NORMALISABLE) || !k.is_finite() {
+            return 0.0;
+        }
+        let inv = 1.0 / k;
+        self.values.iter_mut().for_each(|v| *v *= inv);
+        k
+    }
+
+    /// Bilinear interpolation in `(sqrt(2 theta / pi), phi)` between cell
+    /// centres, periodic in phi and clamped in theta. 0 below the horizon.
+    pub fn eval(&self, h: Vec3) -> f32 {
+        if h.z < 0.0 {
+            return 0.0;
+        }
+        let (u, p) = self.grid.coords(h);
+        let (nt, np) = (self.grid.n_theta as usize, self.grid.n_phi as usize);
+        let tu = (u - 0.5).clamp(0.0, (nt - 1) as f32);
+        let t0 = (tu as usize).min(nt - 1);
+        let t1 = (t0 + 1).min(nt - 1);
+        let ft = tu - t0 as f32;
+        let pp = p - 0.5;
+        let pf = pp.floor();
+        let fp = pp - pf;
+        let p0 = (pf as i64).rem_euclid(np as i64) as usize;
+        let p1 = (p0 + 1) % np;
+        let v = |t: usize, p: usize| self.values[t * np + p];
+        let a = v(t0, p0) * (1.0 - fp) + v(t0, p1) * fp;
+        let b = v(t1, p0) * (1.0 - fp) + v(t1, p1) * fp;
+        a * (1.0 - ft) + b * ft
+    }
+
+    /// The table rotated about the normal by `angle_rad`:
+    /// `rotated(h) = self(R(-angle) h)`. A multiple of the sector width is an
+    /// exact cyclic shift; otherwise the two neighbouring shifts are blended
+    /// linearly and a cell counts as observed only if both sources were.
+    pub fn rotated(&self, angle_rad: f32) -> NdfTable {
+        let np = self.grid.n_phi as usize;
+        let shift = angle_rad / self.grid.dphi();
+        let s0 = shift.floor();
+        let f = shift - s0;
+        let s0 = (s0 as i64).rem_euclid(np as i64) as usize;
+        let mut out = NdfTable::zeros(self.grid);
+        for t in 0..self.grid.n_theta as usize {
+            for p in 0..np {
+                // Source sectors for destination p are p - s0 and p - s0 - 1.
+                let a = self.grid.index(t, (p + np - s0) % np);
+                let b = self.grid.index(t, (p + 2 * np - s0 - 1) % np);
+                let dst = self.grid.index(t, p);
+                out.values[dst] = self.values[a] * (1.0 - f) + self.values[b] * f;
+                let covered = if f == 0.0 {
+                    self.coverage.get(a)
+                } else {
+                    self.coverage.get(a) && self.coverage.get(b)
+                };
+                out.coverage.set(dst, covered);
+            }
+        }
+        out
+    }
+
+    /// Relative L2 distance `sqrt(sum w (a - b)^2 / sum w b^2)` to a reference
+    /// table on the same grid, weighted by each cell's cosine measure, over
+    /// the cells in `mask` (all cells when `None`). `None` if the reference
+    /// has no energy there or the grids differ.
+    pub fn rel_l2(&self, reference: &NdfTable, mask: Option<&Coverage>) -> Option<f32> {
+        if self.grid != reference.grid {
+            return None;
+        }
+        let np = self.grid.n_phi as usize;
+        let (mut num, mut den) = (0.0f64, 0.0f64);
+        for t in 0..self.grid.n_theta as usize {
+            let w = self.grid.cos_measure(t) as f64;
+            for p in 0..np {
+                let i = t * np + p;
+                if mask.is_some_and(|m| !m.get(i)) {
+                    continue;
+                }
+                let (a, b) = (self.values[i] as f64, reference.values[i] as f64);
+                num += w * (a - b) * (a - b);
+                den += w * b * b;
+            }
+        }
+        (den > 0.0).then(|| (num / den).sqrt() as f32)
+    }
+}
+
+/// A table whose cosine integral is below this has no measurable specular
+/// energy: `1e-12` is six orders of magnitude below the smallest `k_s` the
+/// fitter reports (1e-6), so normalising it would only amplify noise.
+pub const MIN_NORMALISABLE: f32 = 1e-12;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn cos_measure_sums_to_pi() {
+        let g = NdfGrid::DEFAULT;
+        let s: f32 = (0..g.n_theta as usize)
+            .map(|t| g.cos_measure(t) * g.n_phi as f32)
+            .sum();
+        assert!((s - std::f32::consts::PI).abs() < 1e-5, "{s}");
+        let w: f32 = (0..g.n_theta as usize)
+            .map(|t| g.solid_angle(t) * g.n_phi as f32)
+            .sum();
+        assert!((w - TAU).abs() < 1e-4, "{w}");
+    }
+
+    #[test]
+    fn cell_lookup_inverts_cell_centres() {
+        let g = NdfGrid::new(16, 48).unwrap();
+        for t in 0..16 {
+            for p in 0..48 {
+                assert_eq!(g.cell(g.direction(t, p)), Some((t, p)));
+            }
+        }
+    }
+
+    #[test]
+    fn eval_at_centre_returns_the_cell_value() {
+        let g = NdfGrid::new(8, 16).unwrap();
+        let mut t = NdfTable::zeros(g);
+        for (i, v) in t.values_mut().iter_mut().enumerate() {
+            *v = i as f32;
+        }
+        for tt in 0..8 {
+            for p in 0..16 {
+                let e = t.eval(g.direction(tt, p));
+                assert!((e - t.at(tt, p)).abs() < 1e-3, "{tt} {p} {e}");
+            }
+        }
+    }
+
+    #[test]
+    fn rotation_by_whole_sectors_is_a_cyclic_shift_and_invertible() {
+        let g = NdfGrid::new(4, 12).unwrap();
+        let mut t = NdfTable::zeros(g);
+        for (i, v) in t.values_mut().iter_mut().enumerate() {
+            *v = i as f32;
+        }
+        t.coverage_mut().set(5, true);
+        let r = t.rotated(3.0 * g.dphi());
+        assert_eq!(r.at(0, 3), t.at(0, 0));
+        assert!(r.coverage().get(8));
+        let back = r.rotated(-3.0 * g.dphi());
+        assert_eq!(back, t);
+    }
+
+    #[test]
+    fn from_values_rejects_bad_input() {
+        let g = NdfGrid::new(2, 4).unwrap();
+        assert!(matches!(
+            NdfTable::from_values(g, vec![0.0; 7], Coverage::empty(8)),
+            Err(TableError::WrongLength { .. })
+        ));
+        let mut v = vec![0.0; 8];
+        v[3] = f32::NAN;
+        assert!(matches!(
+            NdfTable::from_values(g, v, Coverage::empty(8)),
+            Err(TableError::BadValue { index: 3, .. })
+        ));
+        assert!(NdfGrid::new(1, 4).is_err());
+    }
+}
