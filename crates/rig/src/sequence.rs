@@ -1,0 +1,133 @@
+//! The capture sequence: for every shot (a gantry position and one LED),
+//! move if needed, light the LED, take the exposure, and commit it only once
+//! the rig has confirmed that nothing was disturbed while it was taken.
+//!
+//! Confirmation works by [`Rig::epoch`]: every recovery (MCU reboot, link
+//! loss, watchdog) increments it. An exposure taken at epoch `e` is held as
+//! *pending*; the next command to the rig (the next `SetLed`, a move, or the
+//! final `AllOff`) is answered by the MCU with its boot id, and if the epoch
+//! is still `e` afterwards the LED provably stayed lit and the carriage
+//! provably stayed put for the whole exposure, so the pending exposure is
+//! committed. Otherwise it is discarded and the shot is taken again. So a
+//! reboot mid-capture never leaves a silent gap and never assigns a frame
+//! to the wrong LED; it costs at most one retake per recovery.
+
+use std::future::Future;
+
+use serde::{Deserialize, Serialize};
+use tokio::time::Instant;
+
+use crate::mcu::{Connector, Rig, RigError};
+
+/// One exposure of the plan.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Shot {
+    /// Position in the plan (0-based, dense).
+    pub index: u32,
+    pub step: u32,
+    pub led: u8,
+    pub position_um: i32,
+}
+
+/// Takes exposures and receives the confirmed ones.
+pub trait Exposer {
+    type Item: Send;
+    type Error: From<RigError>;
+    /// Take the exposure for `shot`; the LED has been lit since `lit_at`.
+    fn expose(
+        &mut self,
+        shot: &Shot,
+        lit_at: Instant,
+    ) -> impl Future<Output = Result<Self::Item, Self::Error>>;
+    /// An exposure the rig confirmed.
+    fn commit(
+        &mut self,
+        shot: &Shot,
+        item: Self::Item,
+    ) -> impl Future<Output = Result<(), Self::Error>>;
+    /// An exposure discarded because the rig recovered while it was taken.
+    fn discarded(&mut self, shot: &Shot) {
+        tracing::info!(
+            step = shot.step,
+            led = shot.led,
+            "retaking a shot: the rig recovered while it was exposed"
+        );
+    }
+}
+
+/// Counters of a sequence run.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct SequenceStats {
+    pub committed: u64,
+    pub retakes: u64,
+    pub moves: u64,
+}
+
+/// Run `shots` in order (they should be sorted by position so the gantry
+/// moves once per step). On error the LEDs are switched off before
+/// returning; everything committed before the error stays committed.
+pub async fn run<C: Connector, E: Exposer>(
+    rig: &mut Rig<C>,
+    shots: &[Shot],
+    exposer: &mut E,
+) -> Result<SequenceStats, E::Error> {
+    let result = run_inner(rig, shots, exposer).await;
+    if result.is_err() {
+        rig.shutdown().await;
+    }
+    result
+}
+
+async fn run_inner<C: Connector, E: Exposer>(
+    rig: &mut Rig<C>,
+    shots: &[Shot],
+    exposer: &mut E,
+) -> Result<SequenceStats, E::Error> {
+    let mut stats = SequenceStats::default();
+    let mut pending: Option<(usize, E::Item, u64)> = None;
+    let mut at: Option<i32> = None;
+    let mut epoch_at_move = rig.epoch();
+    let mut i = 0;
+    while i < shots.len() {
+        let shot = shots[i];
+        if at != Some(shot.position_um) || rig.epoch() != epoch_at_move {
+            rig.all_off().await?;
+            rig.move_to(shot.position_um).await?;
+            stats.moves += 1;
+            at = Some(shot.position_um);
+            epoch_at_move = rig.epoch();
+        }
+        let lit_at = rig.led_on(shot.led).await?;
+        if let Some((k, item, e)) = pending.take() {
+            if rig.epoch() == e {
+                exposer.commit(&shots[k], item).await?;
+                stats.committed += 1;
+            } else {
+                exposer.discarded(&shots[k]);
+                stats.retakes += 1;
+                at = None;
+                i = k;
+                continue;
+            }
+        }
+        let e = rig.epoch();
+        let item = exposer.expose(&shot, lit_at).await?;
+        pending = Some((i, item, e));
+        i += 1;
+        if i == shots.len() {
+            rig.all_off().await?;
+            if let Some((k, item, e)) = pending.take() {
+                if rig.epoch() == e {
+                    exposer.commit(&shots[k], item).await?;
+                    stats.committed += 1;
+                } else {
+                    exposer.discarded(&shots[k]);
+                    stats.retakes += 1;
+                    at = None;
+                    i = k;
+                }
+            }
+        }
+    }
+    Ok(stats)
+}

@@ -1,0 +1,18 @@
+//! The simulated rig: the real code path with fake physics.
+//!
+//! - [`mcu`]: the emulated microcontroller (firmware side of
+//!   `firmware-protocol`) as a state machine.
+//! - [`link`]: its byte transport, over an in-memory duplex or a real
+//!   pseudo-terminal, with fault injection ([`faults`]).
+//! - [`world`]: the physical timeline (carriage position, lit LED) that the
+//!   simulated camera renders from and tests assert on.
+
+pub mod faults;
+pub mod link;
+pub mod mcu;
+pub mod world;
+
+pub use faults::FaultSpec;
+pub use link::SimMcu;
+pub use mcu::{Mcu, McuConfig, McuStats};
+pub use world::{Effect, Event, OffCause, World};

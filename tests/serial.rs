@@ -1,0 +1,301 @@
+//! The serial driver against the emulated MCU through a real
+//! pseudo-terminal, with injected faults: corrupted, dropped and duplicated
+//! bytes, a reboot in the middle and a disconnect/reconnect. The emulator's
+//! timeline is the judge of what physically happened.
+
+use std::collections::HashMap;
+use std::path::PathBuf;
+use std::time::Duration;
+
+use rig::mcu::{PortLocator, Rig, RigError, RigSettings, SerialConnector};
+use rig::sequence::{self, Exposer, Shot};
+use sim::world::{Effect, OffCause};
+use sim::{FaultSpec, McuConfig, SimMcu, World};
+use tokio::time::Instant;
+
+fn fast_mcu() -> McuConfig {
+    // Mechanics 50x faster than real time; protocol timing unchanged.
+    McuConfig {
+        time_scale: 0.02,
+        ..McuConfig::default()
+    }
+}
+
+fn settings() -> RigSettings {
+    RigSettings {
+        reconnect_timeout: Duration::from_secs(5),
+        speed_um_s: 100_000.0 / 0.02,
+        accel_um_s2: 1_000_000.0 / (0.02 * 0.02),
+        settle_ms: 30.0 * 0.02,
+        homing_speed_um_s: 50_000.0 / 0.02,
+        // The PTY round trip is ~0.1 ms; a short retransmit timeout keeps
+        // the test quick with a third of the frames damaged.
+        reply_timeout: Duration::from_millis(5),
+        move_done_slack: Duration::from_millis(20),
+        ..RigSettings::default()
+    }
+}
+
+fn plan(steps: u32, leds: u8) -> Vec<Shot> {
+    let mut v = Vec::new();
+    for s in 0..steps {
+        let x = -120_000 + (240_000 / (steps.max(2) - 1) as i32) * s as i32;
+        for l in 0..leds {
+            v.push(Shot {
+                index: v.len() as u32,
+                step: s,
+                led: l,
+                position_um: x,
+            });
+        }
+    }
+    v
+}
+
+/// Holds each LED for a short dwell and records what it committed.
+struct Dwell {
+    dwell: Duration,
+    committed: Vec<(Shot, Instant, Instant)>,
+    discarded: u64,
+}
+
+impl Exposer for Dwell {
+    type Item = (Instant, Instant);
+    type Error = RigError;
+    async fn expose(&mut self, _shot: &Shot, lit_at: Instant) -> Result<Self::Item, RigError> {
+        tokio::time::sleep(self.dwell).await;
+        Ok((lit_at, Instant::now()))
+    }
+    async fn commit(&mut self, shot: &Shot, item: Self::Item) -> Result<(), RigError> {
+        self.committed.push((*shot, item.0, item.1));
+        Ok(())
+    }
+    fn discarded(&mut self, _shot: &Shot) {
+        self.discarded += 1;
+    }
+}
+
+struct Firing {
+    led: u8,
+    on: Instant,
+    off: Option<(Instant, OffCause)>,
+}
+
+fn firings(world: &World) -> (Vec<Firing>, bool) {
+    let mut out: Vec<Firing> = Vec::new();
+    let mut lit: Option<usize> = None;
+    let mut overlap = false;
+    for e in world.events() {
+        match e.effect {
+            Effect::LedOn { led, .. } => {
+                if lit.is_some() {
+                    overlap = true;
+                }
+                out.push(Firing {
+                    led,
+                    on: e.t,
+                    off: None,
+                });
+                lit = Some(out.len() - 1);
+            }
+            Effect::LedOff { led, cause } => {
+                if let Some(k) = lit.take() {
+                    assert_eq!(out[k].led, led, "LedOff for an LED that was not lit");
+                    out[k].off = Some((e.t, cause));
+                }
+            }
+            Effect::Reboot { .. } => {
+                if let Some(k) = lit.take() {
+                    out[k].off = Some((e.t, OffCause::Reboot));
+                }
+            }
+            _ => {}
+        }
+    }
+    (out, overlap)
+}
+
+async fn open(sim: &SimMcu) -> Rig<SerialConnector> {
+    let locator = PortLocator::Path {
+        path: sim.link_path.clone().unwrap(),
+    };
+    let mut s = settings();
+    s.led_max_on_ms = 1000;
+    let mut rig = Rig::open(
+        SerialConnector {
+            locator,
+            baud: 1_000_000,
+        },
+        s,
+    )
+    .await
+    .expect("open rig");
+    rig.home().await.expect("home");
+    rig
+}
+
+fn link_path(dir: &tempfile::TempDir) -> PathBuf {
+    dir.path().join("mcu")
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn full_plan_survives_corruption_drops_duplicates_reboot_and_disconnect() {
+    let dir = tempfile::tempdir().unwrap();
+    let faults =
+        FaultSpec::parse("corrupt=0.01,drop=0.005,dup=0.05,reboot-at=1300,disconnect-at=2200,reconnect-ms=300,seed=11")
+            .unwrap();
+    let world = World::new();
+    let sim = SimMcu::spawn_pty(fast_mcu(), faults, world.clone(), Some(link_path(&dir)))
+        .await
+        .unwrap();
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(tracing_subscriber::EnvFilter::from_default_env())
+        .with_test_writer()
+        .try_init();
+    let started = std::time::Instant::now();
+    let mut rig = open(&sim).await;
+    let shots = plan(64, 40);
+    let mut ex = Dwell {
+        dwell: Duration::from_micros(300),
+        committed: Vec::new(),
+        discarded: 0,
+    };
+    let stats = sequence::run(&mut rig, &shots, &mut ex)
+        .await
+        .expect("the plan completes despite the faults");
+    rig.shutdown().await;
+    let link = rig.link_stats();
+    let recoveries = rig.recoveries().to_vec();
+    tokio::time::sleep(Duration::from_millis(20)).await;
+    sim.stop().await.unwrap();
+
+    // Every shot committed exactly once.
+    assert_eq!(stats.committed as usize, shots.len());
+    let mut seen = HashMap::new();
+    for (s, _, _) in &ex.committed {
+        *seen.entry(s.index).or_insert(0) += 1;
+    }
+    assert!(
+        seen.values().all(|&n| n == 1) && seen.len() == shots.len(),
+        "a shot was committed twice or never"
+    );
+
+    let (fired, overlap) = firings(&world);
+    assert!(!overlap, "two LEDs were lit at once");
+    // All off at the end.
+    assert!(fired.iter().all(|f| f.off.is_some()), "an LED was left on");
+    // Each committed exposure lies inside a firing of its LED at its position.
+    for (shot, t0, t1) in &ex.committed {
+        let f = fired
+            .iter()
+            .find(|f| f.led == shot.led && f.on <= *t0 && f.off.is_some_and(|(off, _)| off >= *t1))
+            .unwrap_or_else(|| {
+                panic!(
+                    "no firing of LED {} covers the exposure of shot {}",
+                    shot.led, shot.index
+                )
+            });
+        let pos = world.position_at(f.on, fast_mcu().rest_um);
+        assert!(
+            (pos - shot.position_um as f64).abs() < 1.0,
+            "shot {} fired at {pos} um, not {}",
+            shot.index,
+            shot.position_um
+        );
+        let pos_end = world.position_at(*t1, fast_mcu().rest_um);
+        assert!(
+            (pos_end - shot.position_um as f64).abs() < 1.0,
+            "the carriage moved during shot {}",
+            shot.index
+        );
+    }
+    // Every firing beyond one per shot is explained: it was discarded for a
+    // retake, cut short by the reboot or the disconnect, or was the command
+    // in flight when a recovery began (re-sent after it).
+    let cut_short = fired
+        .iter()
+        .filter(|f| matches!(f.off, Some((_, OffCause::Reboot))))
+        .count() as u64;
+    let extra = fired.len() as u64 - shots.len() as u64;
+    assert!(
+        extra <= stats.retakes + cut_short + recoveries.len() as u64,
+        "{extra} unexplained extra firings ({} retakes, {cut_short} cut short, {} recoveries)",
+        stats.retakes,
+        recoveries.len()
+    );
+    eprintln!(
+        "plan 64x40 in {:.1} s: {} commands, {} retransmits, {} retakes, {} extra firings, recoveries {:?}",
+        started.elapsed().as_secs_f64(),
+        link.commands,
+        link.retransmits,
+        stats.retakes,
+        extra,
+        recoveries
+    );
+    assert!(
+        recoveries
+            .iter()
+            .any(|r| matches!(r, rig::mcu::Recovery::Rebooted { .. })),
+        "the reboot went unnoticed: {recoveries:?}"
+    );
+    eprintln!(
+        "plan 64x40 in {:.1} s: {} commands, {} retransmits, {} retakes, {} extra firings, recoveries {:?}",
+        started.elapsed().as_secs_f64(),
+        link.commands,
+        link.retransmits,
+        stats.retakes,
+        extra,
+        recoveries
+    );
+    assert!(
+        recoveries
+            .iter()
+            .any(|r| matches!(r, rig::mcu::Recovery::Reconnected { .. })),
+        "no reconnect: {recoveries:?}"
+    );
+    assert!(
+        link.retransmits > 100,
+        "faults were not exercised: {link:?}"
+    );
+    eprintln!(
+        "plan 64x40 in {:.1} s: {} commands, {} retransmits, {} retakes, {} extra firings, recoveries {:?}",
+        started.elapsed().as_secs_f64(),
+        link.commands,
+        link.retransmits,
+        stats.retakes,
+        extra,
+        recoveries
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_link_that_never_comes_back_ends_with_a_clear_error_and_leds_off() {
+    let dir = tempfile::tempdir().unwrap();
+    let faults = FaultSpec::parse("disconnect-at=30,reconnect-ms=60000").unwrap();
+    let world = World::new();
+    let sim = SimMcu::spawn_pty(fast_mcu(), faults, world.clone(), Some(link_path(&dir)))
+        .await
+        .unwrap();
+    let mut rig = open(&sim).await;
+    rig.settings_mut().reconnect_timeout = Duration::from_millis(800);
+    let shots = plan(4, 40);
+    let mut ex = Dwell {
+        dwell: Duration::from_micros(100),
+        committed: Vec::new(),
+        discarded: 0,
+    };
+    let err = sequence::run(&mut rig, &shots, &mut ex)
+        .await
+        .expect_err("must fail");
+    let msg = err.to_string();
+    assert!(
+        msg.contains("USB cable") || msg.contains("power"),
+        "error does not say what to check: {msg}"
+    );
+    let (fired, _) = firings(&world);
+    assert!(
+        fired.iter().all(|f| f.off.is_some()),
+        "an LED was left on after the failure"
+    );
+    sim.stop().await.unwrap();
+}
