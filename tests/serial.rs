@@ -15,10 +15,7 @@ use tokio::time::Instant;
 
 fn fast_mcu() -> McuConfig {
     // Mechanics 50x faster than real time; protocol timing unchanged.
-    McuConfig {
-        time_scale: 0.02,
-        ..McuConfig::default()
-    }
+    McuConfig { time_scale: 0.02, ..McuConfig::default() }
 }
 
 fn settings() -> RigSettings {
@@ -41,12 +38,7 @@ fn plan(steps: u32, leds: u8) -> Vec<Shot> {
     for s in 0..steps {
         let x = -120_000 + (240_000 / (steps.max(2) - 1) as i32) * s as i32;
         for l in 0..leds {
-            v.push(Shot {
-                index: v.len() as u32,
-                step: s,
-                led: l,
-                position_um: x,
-            });
+            v.push(Shot { index: v.len() as u32, step: s, led: l, position_um: x });
         }
     }
     v
@@ -91,11 +83,7 @@ fn firings(world: &World) -> (Vec<Firing>, bool) {
                 if lit.is_some() {
                     overlap = true;
                 }
-                out.push(Firing {
-                    led,
-                    on: e.t,
-                    off: None,
-                });
+                out.push(Firing { led, on: e.t, off: None });
                 lit = Some(out.len() - 1);
             }
             Effect::LedOff { led, cause } => {
@@ -116,20 +104,10 @@ fn firings(world: &World) -> (Vec<Firing>, bool) {
 }
 
 async fn open(sim: &SimMcu) -> Rig<SerialConnector> {
-    let locator = PortLocator::Path {
-        path: sim.link_path.clone().unwrap(),
-    };
+    let locator = PortLocator::Path { path: sim.link_path.clone().unwrap() };
     let mut s = settings();
     s.led_max_on_ms = 1000;
-    let mut rig = Rig::open(
-        SerialConnector {
-            locator,
-            baud: 1_000_000,
-        },
-        s,
-    )
-    .await
-    .expect("open rig");
+    let mut rig = Rig::open(SerialConnector { locator, baud: 1_000_000 }, s).await.expect("open rig");
     rig.home().await.expect("home");
     rig
 }
@@ -145,9 +123,7 @@ async fn full_plan_survives_corruption_drops_duplicates_reboot_and_disconnect() 
         FaultSpec::parse("corrupt=0.01,drop=0.005,dup=0.05,reboot-at=1300,disconnect-at=2200,reconnect-ms=300,seed=11")
             .unwrap();
     let world = World::new();
-    let sim = SimMcu::spawn_pty(fast_mcu(), faults, world.clone(), Some(link_path(&dir)))
-        .await
-        .unwrap();
+    let sim = SimMcu::spawn_pty(fast_mcu(), faults, world.clone(), Some(link_path(&dir))).await.unwrap();
     let _ = tracing_subscriber::fmt()
         .with_env_filter(tracing_subscriber::EnvFilter::from_default_env())
         .with_test_writer()
@@ -155,14 +131,8 @@ async fn full_plan_survives_corruption_drops_duplicates_reboot_and_disconnect() 
     let started = std::time::Instant::now();
     let mut rig = open(&sim).await;
     let shots = plan(64, 40);
-    let mut ex = Dwell {
-        dwell: Duration::from_micros(300),
-        committed: Vec::new(),
-        discarded: 0,
-    };
-    let stats = sequence::run(&mut rig, &shots, &mut ex)
-        .await
-        .expect("the plan completes despite the faults");
+    let mut ex = Dwell { dwell: Duration::from_micros(300), committed: Vec::new(), discarded: 0 };
+    let stats = sequence::run(&mut rig, &shots, &mut ex).await.expect("the plan completes despite the faults");
     rig.shutdown().await;
     let link = rig.link_stats();
     let recoveries = rig.recoveries().to_vec();
@@ -175,10 +145,7 @@ async fn full_plan_survives_corruption_drops_duplicates_reboot_and_disconnect() 
     for (s, _, _) in &ex.committed {
         *seen.entry(s.index).or_insert(0) += 1;
     }
-    assert!(
-        seen.values().all(|&n| n == 1) && seen.len() == shots.len(),
-        "a shot was committed twice or never"
-    );
+    assert!(seen.values().all(|&n| n == 1) && seen.len() == shots.len(), "a shot was committed twice or never");
 
     let (fired, overlap) = firings(&world);
     assert!(!overlap, "two LEDs were lit at once");
@@ -189,12 +156,7 @@ async fn full_plan_survives_corruption_drops_duplicates_reboot_and_disconnect() 
         let f = fired
             .iter()
             .find(|f| f.led == shot.led && f.on <= *t0 && f.off.is_some_and(|(off, _)| off >= *t1))
-            .unwrap_or_else(|| {
-                panic!(
-                    "no firing of LED {} covers the exposure of shot {}",
-                    shot.led, shot.index
-                )
-            });
+            .unwrap_or_else(|| panic!("no firing of LED {} covers the exposure of shot {}", shot.led, shot.index));
         let pos = world.position_at(f.on, fast_mcu().rest_um);
         assert!(
             (pos - shot.position_um as f64).abs() < 1.0,
@@ -203,19 +165,12 @@ async fn full_plan_survives_corruption_drops_duplicates_reboot_and_disconnect() 
             shot.position_um
         );
         let pos_end = world.position_at(*t1, fast_mcu().rest_um);
-        assert!(
-            (pos_end - shot.position_um as f64).abs() < 1.0,
-            "the carriage moved during shot {}",
-            shot.index
-        );
+        assert!((pos_end - shot.position_um as f64).abs() < 1.0, "the carriage moved during shot {}", shot.index);
     }
     // Every firing beyond one per shot is explained: it was discarded for a
     // retake, cut short by the reboot or the disconnect, or was the command
     // in flight when a recovery began (re-sent after it).
-    let cut_short = fired
-        .iter()
-        .filter(|f| matches!(f.off, Some((_, OffCause::Reboot))))
-        .count() as u64;
+    let cut_short = fired.iter().filter(|f| matches!(f.off, Some((_, OffCause::Reboot)))).count() as u64;
     let extra = fired.len() as u64 - shots.len() as u64;
     assert!(
         extra <= stats.retakes + cut_short + recoveries.len() as u64,
@@ -233,9 +188,7 @@ async fn full_plan_survives_corruption_drops_duplicates_reboot_and_disconnect() 
         recoveries
     );
     assert!(
-        recoveries
-            .iter()
-            .any(|r| matches!(r, rig::mcu::Recovery::Rebooted { .. })),
+        recoveries.iter().any(|r| matches!(r, rig::mcu::Recovery::Rebooted { .. })),
         "the reboot went unnoticed: {recoveries:?}"
     );
     eprintln!(
@@ -248,15 +201,10 @@ async fn full_plan_survives_corruption_drops_duplicates_reboot_and_disconnect() 
         recoveries
     );
     assert!(
-        recoveries
-            .iter()
-            .any(|r| matches!(r, rig::mcu::Recovery::Reconnected { .. })),
+        recoveries.iter().any(|r| matches!(r, rig::mcu::Recovery::Reconnected { .. })),
         "no reconnect: {recoveries:?}"
     );
-    assert!(
-        link.retransmits > 100,
-        "faults were not exercised: {link:?}"
-    );
+    assert!(link.retransmits > 100, "faults were not exercised: {link:?}");
     eprintln!(
         "plan 64x40 in {:.1} s: {} commands, {} retransmits, {} retakes, {} extra firings, recoveries {:?}",
         started.elapsed().as_secs_f64(),
@@ -273,29 +221,15 @@ async fn a_link_that_never_comes_back_ends_with_a_clear_error_and_leds_off() {
     let dir = tempfile::tempdir().unwrap();
     let faults = FaultSpec::parse("disconnect-at=30,reconnect-ms=60000").unwrap();
     let world = World::new();
-    let sim = SimMcu::spawn_pty(fast_mcu(), faults, world.clone(), Some(link_path(&dir)))
-        .await
-        .unwrap();
+    let sim = SimMcu::spawn_pty(fast_mcu(), faults, world.clone(), Some(link_path(&dir))).await.unwrap();
     let mut rig = open(&sim).await;
     rig.settings_mut().reconnect_timeout = Duration::from_millis(800);
     let shots = plan(4, 40);
-    let mut ex = Dwell {
-        dwell: Duration::from_micros(100),
-        committed: Vec::new(),
-        discarded: 0,
-    };
-    let err = sequence::run(&mut rig, &shots, &mut ex)
-        .await
-        .expect_err("must fail");
+    let mut ex = Dwell { dwell: Duration::from_micros(100), committed: Vec::new(), discarded: 0 };
+    let err = sequence::run(&mut rig, &shots, &mut ex).await.expect_err("must fail");
     let msg = err.to_string();
-    assert!(
-        msg.contains("USB cable") || msg.contains("power"),
-        "error does not say what to check: {msg}"
-    );
+    assert!(msg.contains("USB cable") || msg.contains("power"), "error does not say what to check: {msg}");
     let (fired, _) = firings(&world);
-    assert!(
-        fired.iter().all(|f| f.off.is_some()),
-        "an LED was left on after the failure"
-    );
+    assert!(fired.iter().all(|f| f.off.is_some()), "an LED was left on after the failure");
     sim.stop().await.unwrap();
 }

@@ -55,10 +55,7 @@ pub fn encode_frame(packet: &[u8], out: &mut [u8]) -> Option<usize> {
 
 /// Decode one frame's COBS bytes (without the delimiter) into `packet`,
 /// checking the CRC. Returns the packet length.
-pub fn decode_frame(
-    encoded: &[u8],
-    packet: &mut [u8; MAX_PACKET_LEN + 2],
-) -> Result<usize, FrameError> {
+pub fn decode_frame(encoded: &[u8], packet: &mut [u8; MAX_PACKET_LEN + 2]) -> Result<usize, FrameError> {
     if encoded.is_empty() {
         return Err(FrameError::Empty);
     }
@@ -113,11 +110,7 @@ pub enum Push<'a> {
 
 impl FrameAccumulator {
     pub const fn new() -> Self {
-        Self {
-            buf: [0; MAX_FRAME_LEN],
-            len: 0,
-            overflow: false,
-        }
+        Self { buf: [0; MAX_FRAME_LEN], len: 0, overflow: false }
     }
 
     /// Forget any partial frame (e.g. after reopening the port).

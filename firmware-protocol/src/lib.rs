@@ -20,8 +20,8 @@ pub mod timing;
 
 pub use frame::{FrameAccumulator, FrameError, MAX_FRAME_LEN, MAX_PACKET_LEN};
 pub use message::{
-    Command, CommandPacket, DecodeError, EncodeError, Faults, HelloInfo, NakReason, Reply,
-    ReplyPacket, StatusFlags, StatusInfo,
+    Command, CommandPacket, DecodeError, EncodeError, Faults, HelloInfo, NakReason, Reply, ReplyPacket, StatusFlags,
+    StatusInfo,
 };
 
 /// Protocol version carried in every packet. A peer that receives another

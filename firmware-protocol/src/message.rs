@@ -42,11 +42,7 @@ pub enum Command {
     MoveTo { position_um: i32 },
     /// Light LED `led` alone at `current_ma` (every other LED off in the same
     /// step); it goes off by itself after `max_on_ms`. `Ack` means the LED is lit.
-    SetLed {
-        led: u8,
-        current_ma: u16,
-        max_on_ms: u16,
-    },
+    SetLed { led: u8, current_ma: u16, max_on_ms: u16 },
     /// Every LED off. `Ack` means they are off.
     AllOff,
     /// Report position, flags, lit LED and latched faults.
@@ -280,15 +276,7 @@ impl<'a> Reader<'a> {
 }
 
 fn check_len(id: u8, body: &[u8], want: usize) -> Result<(), DecodeError> {
-    if body.len() == want {
-        Ok(())
-    } else {
-        Err(DecodeError::Length {
-            id,
-            got: body.len(),
-            want,
-        })
-    }
+    if body.len() == want { Ok(()) } else { Err(DecodeError::Length { id, got: body.len(), want }) }
 }
 
 impl CommandPacket {
@@ -300,11 +288,7 @@ impl CommandPacket {
             Command::Hello => w.u8(id::HELLO),
             Command::Home => w.u8(id::HOME),
             Command::MoveTo { position_um } => w.u8(id::MOVE_TO).i32(position_um),
-            Command::SetLed {
-                led,
-                current_ma,
-                max_on_ms,
-            } => w.u8(id::SET_LED).u8(led).u16(current_ma).u16(max_on_ms),
+            Command::SetLed { led, current_ma, max_on_ms } => w.u8(id::SET_LED).u8(led).u16(current_ma).u16(max_on_ms),
             Command::AllOff => w.u8(id::ALL_OFF),
             Command::Status => w.u8(id::STATUS),
             Command::EStop => w.u8(id::E_STOP),
@@ -336,9 +320,7 @@ impl CommandPacket {
         let command = match mid {
             id::HELLO => check_len(mid, body, 0).map(|_| Command::Hello)?,
             id::HOME => check_len(mid, body, 0).map(|_| Command::Home)?,
-            id::MOVE_TO => check_len(mid, body, 4).map(|_| Command::MoveTo {
-                position_um: r.i32(),
-            })?,
+            id::MOVE_TO => check_len(mid, body, 4).map(|_| Command::MoveTo { position_um: r.i32() })?,
             id::SET_LED => check_len(mid, body, 5).map(|_| Command::SetLed {
                 led: r.u8(),
                 current_ma: r.u16(),
@@ -397,10 +379,7 @@ impl ReplyPacket {
                 w.u8(r as u8);
             }
             Reply::Status(s) => {
-                w.i32(s.position_um)
-                    .u8(s.flags.0)
-                    .u8(s.lit_led)
-                    .u8(s.faults.0);
+                w.i32(s.position_um).u8(s.flags.0).u8(s.lit_led).u8(s.faults.0);
             }
             Reply::MoveDone { position_um } => {
                 w.i32(position_um);
@@ -451,17 +430,11 @@ impl ReplyPacket {
                     faults: Faults(r.u8()),
                 })
             }
-            id::R_MOVE_DONE => check_len(mid, body, 4).map(|_| Reply::MoveDone {
-                position_um: r.i32(),
-            })?,
+            id::R_MOVE_DONE => check_len(mid, body, 4).map(|_| Reply::MoveDone { position_um: r.i32() })?,
             id::R_BOOT => check_len(mid, body, 0).map(|_| Reply::Boot)?,
             other => return Err(DecodeError::UnknownId(other)),
         };
-        Ok(Self {
-            seq,
-            boot_id,
-            reply,
-        })
+        Ok(Self { seq, boot_id, reply })
     }
 
     pub fn decode(encoded: &[u8]) -> Result<Self, DecodeError> {

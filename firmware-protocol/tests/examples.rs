@@ -3,8 +3,7 @@
 //! table gives for that label, and must decode back to it.
 
 use firmware_protocol::{
-    Command, CommandPacket, Faults, HelloInfo, MAX_FRAME_LEN, NakReason, Reply, ReplyPacket,
-    StatusFlags, StatusInfo,
+    Command, CommandPacket, Faults, HelloInfo, MAX_FRAME_LEN, NakReason, Reply, ReplyPacket, StatusFlags, StatusInfo,
 };
 
 const DOC: &str = include_str!("../PROTOCOL.md");
@@ -17,13 +16,7 @@ enum Msg {
 fn examples() -> Vec<(&'static str, Msg)> {
     let boot_id = 0x1234_5678;
     let c = |seq, command| Msg::C(CommandPacket { seq, command });
-    let r = |seq, reply| {
-        Msg::R(ReplyPacket {
-            seq,
-            boot_id,
-            reply,
-        })
-    };
+    let r = |seq, reply| Msg::R(ReplyPacket { seq, boot_id, reply });
     vec![
         ("E1", c(1, Command::Hello)),
         (
@@ -44,26 +37,8 @@ fn examples() -> Vec<(&'static str, Msg)> {
         ("E3", c(2, Command::Home)),
         ("E4", r(2, Reply::Ack)),
         ("E5", r(2, Reply::MoveDone { position_um: 0 })),
-        (
-            "E6",
-            c(
-                3,
-                Command::MoveTo {
-                    position_um: -37_500,
-                },
-            ),
-        ),
-        (
-            "E7",
-            c(
-                4,
-                Command::SetLed {
-                    led: 17,
-                    current_ma: 200,
-                    max_on_ms: 500,
-                },
-            ),
-        ),
+        ("E6", c(3, Command::MoveTo { position_um: -37_500 })),
+        ("E7", c(4, Command::SetLed { led: 17, current_ma: 200, max_on_ms: 500 })),
         ("E8", r(4, Reply::Nak(NakReason::NotHomed))),
         ("E9", c(5, Command::Status)),
         (
@@ -93,24 +68,16 @@ fn encode(m: &Msg) -> Vec<u8> {
 }
 
 fn hex(b: &[u8]) -> String {
-    b.iter()
-        .map(|x| format!("{x:02x}"))
-        .collect::<Vec<_>>()
-        .join(" ")
+    b.iter().map(|x| format!("{x:02x}")).collect::<Vec<_>>().join(" ")
 }
 
 fn doc_hex(label: &str) -> Option<Vec<u8>> {
     // A label's description may wrap; its bytes follow the first "=>".
     let prefix = format!("{label}:");
-    let start = DOC
-        .lines()
-        .position(|l| l.trim_start().starts_with(&prefix))?;
+    let start = DOC.lines().position(|l| l.trim_start().starts_with(&prefix))?;
     let line = DOC.lines().skip(start).find(|l| l.contains("=>"))?;
     let hex_part = line.split_once("=>")?.1;
-    hex_part
-        .split_whitespace()
-        .map(|h| u8::from_str_radix(h, 16).ok())
-        .collect()
+    hex_part.split_whitespace().map(|h| u8::from_str_radix(h, 16).ok()).collect()
 }
 
 #[test]
@@ -136,9 +103,5 @@ fn protocol_md_examples_are_exact() {
             None => missing.push(format!("{label}: => {}", hex(&bytes))),
         }
     }
-    assert!(
-        missing.is_empty(),
-        "PROTOCOL.md lacks examples:\n{}",
-        missing.join("\n")
-    );
+    assert!(missing.is_empty(), "PROTOCOL.md lacks examples:\n{}", missing.join("\n"));
 }

@@ -6,8 +6,8 @@
 
 use firmware_protocol::frame::Push;
 use firmware_protocol::{
-    Command, CommandPacket, Faults, FrameAccumulator, HelloInfo, MAX_FRAME_LEN, NakReason, Reply,
-    ReplyPacket, StatusFlags, StatusInfo,
+    Command, CommandPacket, Faults, FrameAccumulator, HelloInfo, MAX_FRAME_LEN, NakReason, Reply, ReplyPacket,
+    StatusFlags, StatusInfo,
 };
 use proptest::prelude::*;
 
@@ -16,13 +16,8 @@ fn command() -> impl Strategy<Value = Command> {
         Just(Command::Hello),
         Just(Command::Home),
         any::<i32>().prop_map(|position_um| Command::MoveTo { position_um }),
-        (any::<u8>(), any::<u16>(), any::<u16>()).prop_map(|(led, current_ma, max_on_ms)| {
-            Command::SetLed {
-                led,
-                current_ma,
-                max_on_ms,
-            }
-        }),
+        (any::<u8>(), any::<u16>(), any::<u16>())
+            .prop_map(|(led, current_ma, max_on_ms)| { Command::SetLed { led, current_ma, max_on_ms } }),
         Just(Command::AllOff),
         Just(Command::Status),
         Just(Command::EStop),
@@ -33,35 +28,22 @@ fn command() -> impl Strategy<Value = Command> {
 
 fn reply() -> impl Strategy<Value = Reply> {
     prop_oneof![
-        (
-            any::<[u8; 3]>(),
-            any::<u8>(),
-            any::<i32>(),
-            any::<i32>(),
-            any::<u16>(),
-            any::<u16>()
-        )
-            .prop_map(
-                |(firmware, n_leds, a, b, max_current_ma, watchdog_ms)| Reply::Hello(HelloInfo {
-                    protocol_version: 1,
-                    firmware,
-                    n_leds,
-                    travel_min_um: a,
-                    travel_max_um: b,
-                    max_current_ma,
-                    watchdog_ms,
-                })
-            ),
-        Just(Reply::Ack),
-        (1u8..=10).prop_map(|r| Reply::Nak(NakReason::from_u8(r))),
-        (any::<i32>(), any::<u8>(), any::<u8>(), any::<u8>()).prop_map(
-            |(position_um, f, lit_led, x)| Reply::Status(StatusInfo {
-                position_um,
-                flags: StatusFlags(f),
-                lit_led,
-                faults: Faults(x)
+        (any::<[u8; 3]>(), any::<u8>(), any::<i32>(), any::<i32>(), any::<u16>(), any::<u16>()).prop_map(
+            |(firmware, n_leds, a, b, max_current_ma, watchdog_ms)| Reply::Hello(HelloInfo {
+                protocol_version: 1,
+                firmware,
+                n_leds,
+                travel_min_um: a,
+                travel_max_um: b,
+                max_current_ma,
+                watchdog_ms,
             })
         ),
+        Just(Reply::Ack),
+        (1u8..=10).prop_map(|r| Reply::Nak(NakReason::from_u8(r))),
+        (any::<i32>(), any::<u8>(), any::<u8>(), any::<u8>()).prop_map(|(position_um, f, lit_led, x)| Reply::Status(
+            StatusInfo { position_um, flags: StatusFlags(f), lit_led, faults: Faults(x) }
+        )),
         any::<i32>().prop_map(|position_um| Reply::MoveDone { position_um }),
         Just(Reply::Boot),
     ]
@@ -161,23 +143,10 @@ fn wrong_version_and_unknown_ids_are_reported() {
     use firmware_protocol::frame::encode_frame;
     let mut out = [0u8; MAX_FRAME_LEN];
     let n = encode_frame(&[2, 7, 1], &mut out).unwrap();
-    assert_eq!(
-        CommandPacket::decode(&out[..n - 1]),
-        Err(DecodeError::Version(2))
-    );
+    assert_eq!(CommandPacket::decode(&out[..n - 1]), Err(DecodeError::Version(2)));
     let n = encode_frame(&[1, 7, 0x42], &mut out).unwrap();
-    assert_eq!(
-        CommandPacket::decode(&out[..n - 1]),
-        Err(DecodeError::UnknownId(0x42))
-    );
+    assert_eq!(CommandPacket::decode(&out[..n - 1]), Err(DecodeError::UnknownId(0x42)));
     assert_eq!(CommandPacket::peek_seq(&out[..n - 1]), Some(7));
     let n = encode_frame(&[1, 7, 0x03, 1, 2], &mut out).unwrap();
-    assert_eq!(
-        CommandPacket::decode(&out[..n - 1]),
-        Err(DecodeError::Length {
-            id: 3,
-            got: 2,
-            want: 4
-        })
-    );
+    assert_eq!(CommandPacket::decode(&out[..n - 1]), Err(DecodeError::Length { id: 3, got: 2, want: 4 }));
 }

@@ -51,11 +51,7 @@ impl std::error::Error for FaultSpecError {}
 
 impl FaultSpec {
     pub fn none() -> Self {
-        Self {
-            reconnect_ms: 300,
-            seed: 1,
-            ..Self::default()
-        }
+        Self { reconnect_ms: 300, seed: 1, ..Self::default() }
     }
 
     /// True if no fault of the serial link is configured.
@@ -75,25 +71,20 @@ impl FaultSpec {
             return Ok(f);
         }
         for item in spec.split(',') {
-            let (k, v) = item.split_once('=').ok_or_else(|| {
-                FaultSpecError(format!("fault '{item}' needs a value, like corrupt=0.01"))
-            })?;
+            let (k, v) = item
+                .split_once('=')
+                .ok_or_else(|| FaultSpecError(format!("fault '{item}' needs a value, like corrupt=0.01")))?;
             let (k, v) = (k.trim(), v.trim());
             let prob = |v: &str| -> Result<f64, FaultSpecError> {
-                let p: f64 = v
-                    .parse()
-                    .map_err(|_| FaultSpecError(format!("{k}={v}: not a number")))?;
+                let p: f64 = v.parse().map_err(|_| FaultSpecError(format!("{k}={v}: not a number")))?;
                 if (0.0..=1.0).contains(&p) {
                     Ok(p)
                 } else {
-                    Err(FaultSpecError(format!(
-                        "{k}={v}: a probability must be between 0 and 1"
-                    )))
+                    Err(FaultSpecError(format!("{k}={v}: a probability must be between 0 and 1")))
                 }
             };
             let int = |v: &str| -> Result<u64, FaultSpecError> {
-                v.parse()
-                    .map_err(|_| FaultSpecError(format!("{k}={v}: not a whole number")))
+                v.parse().map_err(|_| FaultSpecError(format!("{k}={v}: not a whole number")))
             };
             match k {
                 "corrupt" => f.corrupt = prob(v)?,
@@ -168,10 +159,8 @@ mod tests {
 
     #[test]
     fn parses_a_full_spec_and_rejects_nonsense() {
-        let f = FaultSpec::parse(
-            "corrupt=0.01,drop=0.005,dup=0.02,delay-ms=3,reboot-at=500,disconnect-at=900,seed=7",
-        )
-        .unwrap();
+        let f = FaultSpec::parse("corrupt=0.01,drop=0.005,dup=0.02,delay-ms=3,reboot-at=500,disconnect-at=900,seed=7")
+            .unwrap();
         assert_eq!(f.corrupt, 0.01);
         assert_eq!(f.reboot_at, vec![500]);
         assert_eq!(f.seed, 7);

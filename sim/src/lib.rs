@@ -7,7 +7,9 @@
 //! - [`world`]: the physical timeline (carriage position, lit LED) that the
 //!   simulated camera renders from and tests assert on.
 
+pub mod camera;
 pub mod faults;
+pub mod materials;
 pub mod link;
 pub mod mcu;
 pub mod world;

@@ -43,25 +43,14 @@ pub struct LinkFaults {
 
 impl LinkFaults {
     pub fn new(spec: FaultSpec) -> Self {
-        Self {
-            input: ByteFaults::new(&spec, 1),
-            output: ByteFaults::new(&spec, 2),
-            spec,
-            commands_seen: 0,
-        }
+        Self { input: ByteFaults::new(&spec, 1), output: ByteFaults::new(&spec, 2), spec, commands_seen: 0 }
     }
 }
 
-async fn send<W: AsyncWrite + Unpin>(
-    w: &mut W,
-    faults: &mut LinkFaults,
-    replies: Vec<ReplyPacket>,
-) -> io::Result<()> {
+async fn send<W: AsyncWrite + Unpin>(w: &mut W, faults: &mut LinkFaults, replies: Vec<ReplyPacket>) -> io::Result<()> {
     for r in replies {
         let mut buf = [0u8; MAX_FRAME_LEN];
-        let n = r
-            .encode(&mut buf)
-            .map_err(|e| io::Error::other(format!("{e:?}")))?;
+        let n = r.encode(&mut buf).map_err(|e| io::Error::other(format!("{e:?}")))?;
         if faults.spec.delay_ms > 0 {
             tokio::time::sleep(Duration::from_millis(faults.spec.delay_ms)).await;
         }
@@ -179,11 +168,7 @@ impl Pty {
         // SAFETY: `r.master` is an open descriptor owned by the OwnedFd that
         // the AsyncFd takes over; it stays open and unchanged until dropped.
         let fd = unsafe { AsyncFd::register(r.master) }.map_err(|e| e.into_parts().1)?;
-        Ok(Self {
-            master: PtyMaster { fd },
-            _slave: r.slave,
-            slave_path,
-        })
+        Ok(Self { master: PtyMaster { fd }, _slave: r.slave, slave_path })
     }
 }
 
@@ -201,28 +186,14 @@ fn set_nonblocking(fd: &OwnedFd) -> io::Result<()> {
 }
 
 impl AsyncRead for PtyMaster {
-    fn poll_read(
-        self: Pin<&mut Self>,
-        cx: &mut Context<'_>,
-        buf: &mut ReadBuf<'_>,
-    ) -> Poll<io::Result<()>> {
+    fn poll_read(self: Pin<&mut Self>, cx: &mut Context<'_>, buf: &mut ReadBuf<'_>) -> Poll<io::Result<()>> {
         loop {
             let mut guard = ready!(self.fd.poll_read_ready(cx))?;
             let unfilled = buf.initialize_unfilled();
             match guard.try_io(|inner| {
                 // SAFETY: reading into a live, initialised buffer of the given length.
-                let n = unsafe {
-                    libc::read(
-                        inner.as_raw_fd(),
-                        unfilled.as_mut_ptr().cast(),
-                        unfilled.len(),
-                    )
-                };
-                if n < 0 {
-                    Err(io::Error::last_os_error())
-                } else {
-                    Ok(n as usize)
-                }
+                let n = unsafe { libc::read(inner.as_raw_fd(), unfilled.as_mut_ptr().cast(), unfilled.len()) };
+                if n < 0 { Err(io::Error::last_os_error()) } else { Ok(n as usize) }
             }) {
                 Ok(Ok(n)) => {
                     buf.advance(n);
@@ -236,21 +207,13 @@ impl AsyncRead for PtyMaster {
 }
 
 impl AsyncWrite for PtyMaster {
-    fn poll_write(
-        self: Pin<&mut Self>,
-        cx: &mut Context<'_>,
-        data: &[u8],
-    ) -> Poll<io::Result<usize>> {
+    fn poll_write(self: Pin<&mut Self>, cx: &mut Context<'_>, data: &[u8]) -> Poll<io::Result<usize>> {
         loop {
             let mut guard = ready!(self.fd.poll_write_ready(cx))?;
             match guard.try_io(|inner| {
                 // SAFETY: writing from a live buffer of the given length.
                 let n = unsafe { libc::write(inner.as_raw_fd(), data.as_ptr().cast(), data.len()) };
-                if n < 0 {
-                    Err(io::Error::last_os_error())
-                } else {
-                    Ok(n as usize)
-                }
+                if n < 0 { Err(io::Error::last_os_error()) } else { Ok(n as usize) }
             }) {
                 Ok(r) => return Poll::Ready(r),
                 Err(_would_block) => continue,
@@ -294,12 +257,7 @@ impl SimMcu {
         let current_path = Arc::new(Mutex::new(None));
         let pty = Pty::open()?;
         publish(&current_path, link_path.as_deref(), &pty.slave_path)?;
-        let (stats2, path2, link2, world2) = (
-            stats.clone(),
-            current_path.clone(),
-            link_path.clone(),
-            world.clone(),
-        );
+        let (stats2, path2, link2, world2) = (stats.clone(), current_path.clone(), link_path.clone(), world.clone());
         let task = tokio::spawn(async move {
             let reconnect = Duration::from_millis(faults.reconnect_ms);
             let mut lf = LinkFaults::new(faults);
@@ -333,22 +291,11 @@ impl SimMcu {
                 }
             }
         });
-        Ok(Self {
-            world,
-            stats,
-            current_path,
-            link_path,
-            shutdown: tx,
-            task: Some(task),
-        })
+        Ok(Self { world, stats, current_path, link_path, shutdown: tx, task: Some(task) })
     }
 
     /// Start the emulator on an in-memory duplex; returns the host's end.
-    pub fn spawn_duplex(
-        cfg: McuConfig,
-        faults: FaultSpec,
-        world: World,
-    ) -> (Self, tokio::io::DuplexStream) {
+    pub fn spawn_duplex(cfg: McuConfig, faults: FaultSpec, world: World) -> (Self, tokio::io::DuplexStream) {
         let (host, dev) = tokio::io::duplex(4096);
         let (tx, mut rx) = watch::channel(false);
         let stats = Arc::new(Mutex::new(McuStats::default()));
@@ -359,9 +306,7 @@ impl SimMcu {
             let (mut mcu, boot) = Mcu::power_up(cfg, world2, lf.spec.seed, Instant::now());
             let mut dev = dev;
             send(&mut dev, &mut lf, vec![boot]).await?;
-            serve(&mut mcu, dev, &mut lf, &mut rx, &stats2)
-                .await
-                .map(|_| ())
+            serve(&mut mcu, dev, &mut lf, &mut rx, &stats2).await.map(|_| ())
         });
         (
             Self {
@@ -378,12 +323,7 @@ impl SimMcu {
 
     /// The tty the host should open now (`None` while unplugged).
     pub fn device_path(&self) -> Option<PathBuf> {
-        self.link_path.clone().or_else(|| {
-            self.current_path
-                .lock()
-                .unwrap_or_else(|p| p.into_inner())
-                .clone()
-        })
+        self.link_path.clone().or_else(|| self.current_path.lock().unwrap_or_else(|p| p.into_inner()).clone())
     }
 
     pub fn stats(&self) -> McuStats {

@@ -13,8 +13,8 @@
 use firmware_protocol::frame::FrameError;
 use firmware_protocol::message::NO_LED;
 use firmware_protocol::{
-    Command, CommandPacket, DecodeError, Faults, HelloInfo, NakReason, PROTOCOL_VERSION, Reply,
-    ReplyPacket, StatusFlags, StatusInfo, UNSOLICITED_SEQ,
+    Command, CommandPacket, DecodeError, Faults, HelloInfo, NakReason, PROTOCOL_VERSION, Reply, ReplyPacket,
+    StatusFlags, StatusInfo, UNSOLICITED_SEQ,
 };
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
@@ -56,10 +56,7 @@ impl Default for McuConfig {
             switch_min_um: -125_000,
             max_current_ma: 350,
             watchdog_ms: firmware_protocol::timing::WATCHDOG_MS,
-            profile: MotionProfile {
-                speed_um_s: 100_000.0,
-                accel_um_s2: 1_000_000.0,
-            },
+            profile: MotionProfile { speed_um_s: 100_000.0, accel_um_s2: 1_000_000.0 },
             homing_speed_um_s: 50_000.0,
             settle_ms: 30.0,
             time_scale: 1.0,
@@ -116,10 +113,7 @@ pub struct Mcu {
 
 impl std::fmt::Debug for Mcu {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Mcu")
-            .field("boot_id", &self.boot_id)
-            .field("homed", &self.homed)
-            .finish_non_exhaustive()
+        f.debug_struct("Mcu").field("boot_id", &self.boot_id).field("homed", &self.homed).finish_non_exhaustive()
     }
 }
 
@@ -151,13 +145,7 @@ impl Mcu {
     pub fn reset(&mut self, now: Instant) -> ReplyPacket {
         self.halt(now);
         if let Some(l) = self.lit.take() {
-            self.world.record(
-                now,
-                Effect::LedOff {
-                    led: l.led,
-                    cause: OffCause::Reboot,
-                },
-            );
+            self.world.record(now, Effect::LedOff { led: l.led, cause: OffCause::Reboot });
         }
         self.boot_id = self.rng.random::<u32>() | 1;
         self.homed = false;
@@ -166,17 +154,8 @@ impl Mcu {
         self.faults = 0;
         self.last = None;
         self.last_rx = now;
-        self.world.record(
-            now,
-            Effect::Reboot {
-                boot_id: self.boot_id,
-            },
-        );
-        ReplyPacket {
-            seq: UNSOLICITED_SEQ,
-            boot_id: self.boot_id,
-            reply: Reply::Boot,
-        }
+        self.world.record(now, Effect::Reboot { boot_id: self.boot_id });
+        ReplyPacket { seq: UNSOLICITED_SEQ, boot_id: self.boot_id, reply: Reply::Boot }
     }
 
     pub fn boot_id(&self) -> u32 {
@@ -196,11 +175,7 @@ impl Mcu {
     }
 
     fn reply(&self, seq: u8, reply: Reply) -> ReplyPacket {
-        ReplyPacket {
-            seq,
-            boot_id: self.boot_id,
-            reply,
-        }
+        ReplyPacket { seq, boot_id: self.boot_id, reply }
     }
 
     fn scaled(&self, seconds: f64) -> Duration {
@@ -211,10 +186,7 @@ impl Mcu {
     /// multiplied by `time_scale`.
     fn real_time(&self, p: MotionProfile) -> MotionProfile {
         let k = self.cfg.time_scale.max(1e-12);
-        MotionProfile {
-            speed_um_s: p.speed_um_s / k,
-            accel_um_s2: p.accel_um_s2 / (k * k),
-        }
+        MotionProfile { speed_um_s: p.speed_um_s / k, accel_um_s2: p.accel_um_s2 / (k * k) }
     }
 
     /// Physical position at `now`.
@@ -250,21 +222,13 @@ impl Mcu {
         }
     }
 
-    fn start_motion(
-        &mut self,
-        now: Instant,
-        seq: u8,
-        to_um: f64,
-        profile: MotionProfile,
-        homing: bool,
-    ) {
+    fn start_motion(&mut self, now: Instant, seq: u8, to_um: f64, profile: MotionProfile, homing: bool) {
         let from = self.physical_position(now);
         if self.motion.is_some() {
             self.halt(now);
         }
         let profile = self.real_time(profile);
-        let dur = profile.duration_s(to_um - from)
-            + self.scaled(self.cfg.settle_ms / 1000.0).as_secs_f64();
+        let dur = profile.duration_s(to_um - from) + self.scaled(self.cfg.settle_ms / 1000.0).as_secs_f64();
         self.motion = Some(Motion {
             seq,
             from_um: from,
@@ -274,14 +238,7 @@ impl Mcu {
             profile,
             homing,
         });
-        self.world.record(
-            now,
-            Effect::MoveStart {
-                from_um: from,
-                to_um,
-                profile,
-            },
-        );
+        self.world.record(now, Effect::MoveStart { from_um: from, to_um, profile });
     }
 
     fn status(&self, now: Instant) -> StatusInfo {
@@ -327,9 +284,7 @@ impl Mcu {
                     DecodeError::Version(_) => NakReason::VersionMismatch,
                     DecodeError::UnknownId(_) => NakReason::UnknownCommand,
                     DecodeError::Length { .. } => NakReason::BadLength,
-                    DecodeError::Frame(FrameError::TooShort) | DecodeError::Frame(_) => {
-                        NakReason::BadLength
-                    }
+                    DecodeError::Frame(FrameError::TooShort) | DecodeError::Frame(_) => NakReason::BadLength,
                 };
                 self.stats.naks += 1;
                 return vec![self.reply(seq, Reply::Nak(reason))];
@@ -404,10 +359,7 @@ impl Mcu {
                     }
                     return Reply::Ack;
                 }
-                let prof = MotionProfile {
-                    speed_um_s: self.cfg.homing_speed_um_s,
-                    ..self.cfg.profile
-                };
+                let prof = MotionProfile { speed_um_s: self.cfg.homing_speed_um_s, ..self.cfg.profile };
                 self.start_motion(now, p.seq, self.cfg.switch_min_um as f64, prof, true);
                 Reply::Ack
             }
@@ -425,11 +377,7 @@ impl Mcu {
                 self.start_motion(now, p.seq, target_phys, self.cfg.profile, false);
                 Reply::Ack
             }
-            Command::SetLed {
-                led,
-                current_ma,
-                max_on_ms,
-            } => {
+            Command::SetLed { led, current_ma, max_on_ms } => {
                 if let Some(r) = self.blocked() {
                     return Reply::Nak(r);
                 }
@@ -441,10 +389,7 @@ impl Mcu {
                 }
                 self.led_off(now, OffCause::Command);
                 self.world.record(now, Effect::LedOn { led, current_ma });
-                self.lit = Some(Lit {
-                    led,
-                    off_deadline: now + Duration::from_millis(max_on_ms as u64),
-                });
+                self.lit = Some(Lit { led, off_deadline: now + Duration::from_millis(max_on_ms as u64) });
                 Reply::Ack
             }
         }
@@ -454,14 +399,7 @@ impl Mcu {
     pub fn next_deadline(&self) -> Option<Instant> {
         let active = self.motion.is_some() || self.lit.is_some();
         let wd = active.then(|| self.last_rx + Duration::from_millis(self.cfg.watchdog_ms as u64));
-        [
-            self.motion.map(|m| m.done_at),
-            self.lit.map(|l| l.off_deadline),
-            wd,
-        ]
-        .into_iter()
-        .flatten()
-        .min()
+        [self.motion.map(|m| m.done_at), self.lit.map(|l| l.off_deadline), wd].into_iter().flatten().min()
     }
 
     /// Advance time to `now`: finish moves, enforce LED on-time and the
@@ -489,9 +427,7 @@ impl Mcu {
                     self.offset_um = 0.0;
                     self.world.record(m.done_at, Effect::Homed);
                 }
-                let done = Reply::MoveDone {
-                    position_um: self.reported_position(now),
-                };
+                let done = Reply::MoveDone { position_um: self.reported_position(now) };
                 if self.last.is_some_and(|(s, _)| s == m.seq) {
                     self.last = Some((m.seq, done));
                 }
@@ -504,8 +440,5 @@ impl Mcu {
 
 /// Version of the emulated firmware, as reported by `Hello`.
 pub fn firmware_version(cfg: &McuConfig) -> String {
-    format!(
-        "{}.{}.{}",
-        cfg.firmware[0], cfg.firmware[1], cfg.firmware[2]
-    )
+    format!("{}.{}.{}", cfg.firmware[0], cfg.firmware[1], cfg.firmware[2])
 }

@@ -75,11 +75,7 @@ impl MotionProfile {
         let d = dist_um.abs();
         let (v, a) = (self.speed_um_s.max(1e-9), self.accel_um_s2.max(1e-9));
         let d_ramp = v * v / a; // accelerate and decelerate to/from full speed
-        if d >= d_ramp {
-            d / v + v / a
-        } else {
-            2.0 * (d / a).sqrt()
-        }
+        if d >= d_ramp { d / v + v / a } else { 2.0 * (d / a).sqrt() }
     }
 
     /// Distance covered `t_s` into a move of `dist_um` (clamped to the end).
@@ -88,11 +84,7 @@ impl MotionProfile {
         let (v, a) = (self.speed_um_s.max(1e-9), self.accel_um_s2.max(1e-9));
         let total = self.duration_s(d);
         let t = t_s.clamp(0.0, total);
-        let (t_ramp, v_peak) = if d >= v * v / a {
-            (v / a, v)
-        } else {
-            ((d / a).sqrt(), (d * a).sqrt())
-        };
+        let (t_ramp, v_peak) = if d >= v * v / a { (v / a, v) } else { ((d / a).sqrt(), (d * a).sqrt()) };
         if t <= t_ramp {
             0.5 * a * t * t
         } else if t <= total - t_ramp {
@@ -185,11 +177,7 @@ fn position_in(ev: &[Event], t: Instant, rest_um: f64) -> f64 {
     let mut moving: Option<(Instant, f64, f64, MotionProfile)> = None;
     for e in ev.iter().take_while(|e| e.t <= t) {
         match e.effect {
-            Effect::MoveStart {
-                from_um,
-                to_um,
-                profile,
-            } => {
+            Effect::MoveStart { from_um, to_um, profile } => {
                 pos = from_um;
                 moving = Some((e.t, from_um, to_um, profile));
             }
@@ -213,17 +201,11 @@ mod tests {
 
     #[test]
     fn trapezoid_reaches_the_target_at_its_duration() {
-        let p = MotionProfile {
-            speed_um_s: 100_000.0,
-            accel_um_s2: 1_000_000.0,
-        };
+        let p = MotionProfile { speed_um_s: 100_000.0, accel_um_s2: 1_000_000.0 };
         for d in [10.0, 1000.0, 3750.0, 240_000.0] {
             let t = p.duration_s(d);
             assert!((p.distance_at(d, t) - d).abs() < 1e-6, "{d}");
-            assert!(
-                (p.distance_at(d, t / 2.0) - d / 2.0).abs() < 1e-6 * d,
-                "{d} midpoint"
-            );
+            assert!((p.distance_at(d, t / 2.0) - d / 2.0).abs() < 1e-6 * d, "{d} midpoint");
         }
     }
 }

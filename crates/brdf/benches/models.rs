@@ -18,9 +18,7 @@ fn directions() -> Vec<(Vec3, Vec3)> {
         let p = k as f32 * 2.399_963;
         Vec3::new(r * p.cos(), r * p.sin(), z)
     };
-    (0..PAIRS)
-        .map(|k| (dir(k, PAIRS), dir((k * 7919) % PAIRS, PAIRS)))
-        .collect()
+    (0..PAIRS).map(|k| (dir(k, PAIRS), dir((k * 7919) % PAIRS, PAIRS))).collect()
 }
 
 fn bench_models(c: &mut Criterion) {
@@ -48,13 +46,7 @@ fn bench_models(c: &mut Criterion) {
     let ndfs: Vec<(&str, Box<dyn Ndf>)> = vec![
         ("beckmann", Box::new(Beckmann::new(0.2, 0.4, 0.3))),
         ("ggx", Box::new(Ggx::new(0.2, 0.4, 0.3))),
-        (
-            "tabulated",
-            Box::new(TabulatedNdf::new(
-                table.clone(),
-                &MaskingOperator::new(grid),
-            )),
-        ),
+        ("tabulated", Box::new(TabulatedNdf::new(table.clone(), &MaskingOperator::new(grid)))),
     ];
     for (name, n) in &ndfs {
         group.bench_function(format!("{name}_d_and_sigma"), |b| {
@@ -72,9 +64,7 @@ fn bench_models(c: &mut Criterion) {
     let op = MaskingOperator::new(grid);
     let mut group = c.benchmark_group("table");
     group.throughput(Throughput::Elements(1));
-    group.bench_function("masking_by_fft_32x96", |b| {
-        b.iter(|| op.projected_areas(black_box(&table)))
-    });
+    group.bench_function("masking_by_fft_32x96", |b| b.iter(|| op.projected_areas(black_box(&table))));
     group.finish();
 }
 

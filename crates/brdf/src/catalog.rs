@@ -7,8 +7,8 @@ use glam::Vec3;
 
 use crate::fresnel::Fresnel;
 use crate::model::{
-    AshikhminShirley, BlinnPhong, Brdf, CookTorrance, He, Lafortune, LafortuneLobe, Lambert,
-    Microfacet, PhongModified, PhongOriginal, Ward, WardNormalisation,
+    AshikhminShirley, BlinnPhong, Brdf, CookTorrance, He, Lafortune, LafortuneLobe, Lambert, Microfacet, PhongModified,
+    PhongOriginal, Ward, WardNormalisation,
 };
 use crate::ndf::{Beckmann, Ggx, MaskingOperator, NdfGrid, NdfTable, TabulatedNdf};
 
@@ -27,9 +27,7 @@ pub struct Entry {
 
 impl std::fmt::Debug for Entry {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Entry")
-            .field("name", &self.name)
-            .finish_non_exhaustive()
+        f.debug_struct("Entry").field("name", &self.name).finish_non_exhaustive()
     }
 }
 
@@ -59,32 +57,21 @@ pub fn models(alpha: f32, anisotropy: f32, kd: f32, ks: f32, grid: Option<NdfGri
         },
         Entry {
             name: "phong_original",
-            brdf: Box::new(PhongOriginal {
-                ks: ks3,
-                exponent: n,
-            }),
+            brdf: Box::new(PhongOriginal { ks: ks3, exponent: n }),
             reciprocal: false,
             energy_conserving: false,
             analytic: true,
         },
         Entry {
             name: "phong_modified",
-            brdf: Box::new(PhongModified {
-                kd: kd3,
-                ks: ks3,
-                exponent: n,
-            }),
+            brdf: Box::new(PhongModified { kd: kd3, ks: ks3, exponent: n }),
             reciprocal: true,
             energy_conserving: true,
             analytic: true,
         },
         Entry {
             name: "blinn_phong",
-            brdf: Box::new(BlinnPhong {
-                kd: kd3,
-                ks: ks3,
-                exponent: n,
-            }),
+            brdf: Box::new(BlinnPhong { kd: kd3, ks: ks3, exponent: n }),
             reciprocal: true,
             energy_conserving: false,
             analytic: true,
@@ -122,20 +109,8 @@ pub fn models(alpha: f32, anisotropy: f32, kd: f32, ks: f32, grid: Option<NdfGri
             brdf: Box::new(Lafortune {
                 kd: kd3,
                 lobes: vec![
-                    LafortuneLobe {
-                        cx: -1.0,
-                        cy: -1.0,
-                        cz: 1.0,
-                        n,
-                        rho: ks3 * (n + 2.0) / std::f32::consts::TAU,
-                    },
-                    LafortuneLobe {
-                        cx: 0.6,
-                        cy: 0.6,
-                        cz: 0.3,
-                        n: 2.0,
-                        rho: Vec3::splat(0.02),
-                    },
+                    LafortuneLobe { cx: -1.0, cy: -1.0, cz: 1.0, n, rho: ks3 * (n + 2.0) / std::f32::consts::TAU },
+                    LafortuneLobe { cx: 0.6, cy: 0.6, cz: 0.3, n: 2.0, rho: Vec3::splat(0.02) },
                 ],
             }),
             reciprocal: true,
@@ -144,37 +119,21 @@ pub fn models(alpha: f32, anisotropy: f32, kd: f32, ks: f32, grid: Option<NdfGri
         },
         Entry {
             name: "cook_torrance",
-            brdf: Box::new(CookTorrance {
-                kd: kd3,
-                ks: ks3,
-                m: alpha,
-                eta: 1.5,
-            }),
+            brdf: Box::new(CookTorrance { kd: kd3, ks: ks3, m: alpha, eta: 1.5 }),
             reciprocal: true,
             energy_conserving: true,
             analytic: true,
         },
         Entry {
             name: "ashikhmin_shirley",
-            brdf: Box::new(AshikhminShirley {
-                rd: kd3,
-                rs: Vec3::splat(0.05),
-                nu: n,
-                nv,
-                angle_rad: 0.4,
-            }),
+            brdf: Box::new(AshikhminShirley { rd: kd3, rs: Vec3::splat(0.05), nu: n, nv, angle_rad: 0.4 }),
             reciprocal: true,
             energy_conserving: true,
             analytic: true,
         },
         Entry {
             name: "microfacet_beckmann",
-            brdf: Box::new(Microfacet {
-                kd: kd3,
-                ks: ks3,
-                ndf: Beckmann::new(alpha, ay, 0.4),
-                fresnel: Fresnel::One,
-            }),
+            brdf: Box::new(Microfacet { kd: kd3, ks: ks3, ndf: Beckmann::new(alpha, ay, 0.4), fresnel: Fresnel::One }),
             reciprocal: true,
             energy_conserving: true,
             analytic: true,
@@ -193,11 +152,7 @@ pub fn models(alpha: f32, anisotropy: f32, kd: f32, ks: f32, grid: Option<NdfGri
         },
         Entry {
             name: "he",
-            brdf: Box::new(He {
-                tau_um: 3.0,
-                sigma0_um: (alpha * 1.5).min(1.0),
-                ..He::plastic(kd3)
-            }),
+            brdf: Box::new(He { tau_um: 3.0, sigma0_um: (alpha * 1.5).min(1.0), ..He::plastic(kd3) }),
             reciprocal: true,
             energy_conserving: true,
             analytic: true,
@@ -209,12 +164,7 @@ pub fn models(alpha: f32, anisotropy: f32, kd: f32, ks: f32, grid: Option<NdfGri
         table.normalize();
         v.push(Entry {
             name: "microfacet_tabulated",
-            brdf: Box::new(Microfacet {
-                kd: kd3,
-                ks: ks3,
-                ndf: TabulatedNdf::new(table, &op),
-                fresnel: Fresnel::One,
-            }),
+            brdf: Box::new(Microfacet { kd: kd3, ks: ks3, ndf: TabulatedNdf::new(table, &op), fresnel: Fresnel::One }),
             reciprocal: true,
             energy_conserving: true,
             analytic: false,

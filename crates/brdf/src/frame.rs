@@ -37,22 +37,14 @@ pub fn tan2_theta(v: Vec3) -> f32 {
 #[inline]
 pub fn cos2_sin2_phi(v: Vec3) -> (f32, f32) {
     let s2 = sin2_theta(v);
-    if s2 <= 0.0 {
-        (1.0, 0.0)
-    } else {
-        (v.x * v.x / s2, v.y * v.y / s2)
-    }
+    if s2 <= 0.0 { (1.0, 0.0) } else { (v.x * v.x / s2, v.y * v.y / s2) }
 }
 
 /// Azimuth in `[0, 2 pi)`.
 #[inline]
 pub fn phi(v: Vec3) -> f32 {
     let p = v.y.atan2(v.x);
-    if p < 0.0 {
-        p + std::f32::consts::TAU
-    } else {
-        p
-    }
+    if p < 0.0 { p + std::f32::consts::TAU } else { p }
 }
 
 /// True when a direction lies strictly above the horizon.
@@ -92,11 +84,7 @@ pub const HALF_VECTOR_MIN_LEN: f32 = 1e-6;
 pub fn half_vector(i: Vec3, o: Vec3) -> Option<Vec3> {
     let h = i + o;
     let len = h.length();
-    if len < HALF_VECTOR_MIN_LEN {
-        None
-    } else {
-        Some(h / len)
-    }
+    if len < HALF_VECTOR_MIN_LEN { None } else { Some(h / len) }
 }
 
 /// Rotate a direction about the normal by `angle` (radians, counter-clockwise
@@ -124,10 +112,7 @@ pub fn concentric_disk(u: Vec2) -> Vec2 {
     let (r, theta) = if a.x.abs() > a.y.abs() {
         (a.x, std::f32::consts::FRAC_PI_4 * (a.y / a.x))
     } else {
-        (
-            a.y,
-            std::f32::consts::FRAC_PI_2 - std::f32::consts::FRAC_PI_4 * (a.x / a.y),
-        )
+        (a.y, std::f32::consts::FRAC_PI_2 - std::f32::consts::FRAC_PI_4 * (a.x / a.y))
     };
     let (s, c) = theta.sin_cos();
     Vec2::new(r * c, r * s)

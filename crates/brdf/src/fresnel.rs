@@ -54,11 +54,7 @@ pub fn conductor(cos_d: f32, eta: f32, k: f32) -> f32 {
     let r_parl = n.mul(ci).sub(cos_t).div(n.mul(ci).add(cos_t));
     let r_perp = ci.sub(n.mul(cos_t)).div(ci.add(n.mul(cos_t)));
     let f = 0.5 * (r_parl.norm2() + r_perp.norm2());
-    if f.is_finite() {
-        f.clamp(0.0, 1.0)
-    } else {
-        1.0
-    }
+    if f.is_finite() { f.clamp(0.0, 1.0) } else { 1.0 }
 }
 
 /// A Fresnel term as stored in materials and fitted models.
@@ -90,16 +86,10 @@ impl Fresnel {
                 let f0 = dielectric_f0(eta).max(RELATIVE_F0_FLOOR);
                 Vec3::splat(dielectric(cos_d, eta) / f0)
             }
-            Fresnel::Schlick { f0 } => Vec3::new(
-                schlick(cos_d, f0.x),
-                schlick(cos_d, f0.y),
-                schlick(cos_d, f0.z),
-            ),
-            Fresnel::Conductor { eta, k } => Vec3::new(
-                conductor(cos_d, eta.x, k.x),
-                conductor(cos_d, eta.y, k.y),
-                conductor(cos_d, eta.z, k.z),
-            ),
+            Fresnel::Schlick { f0 } => Vec3::new(schlick(cos_d, f0.x), schlick(cos_d, f0.y), schlick(cos_d, f0.z)),
+            Fresnel::Conductor { eta, k } => {
+                Vec3::new(conductor(cos_d, eta.x, k.x), conductor(cos_d, eta.y, k.y), conductor(cos_d, eta.z, k.z))
+            }
         }
     }
 
@@ -138,20 +128,14 @@ impl Complex {
         Self::new(self.re - o.re, self.im - o.im)
     }
     fn mul(self, o: Self) -> Self {
-        Self::new(
-            self.re * o.re - self.im * o.im,
-            self.re * o.im + self.im * o.re,
-        )
+        Self::new(self.re * o.re - self.im * o.im, self.re * o.im + self.im * o.re)
     }
     fn norm2(self) -> f32 {
         self.re * self.re + self.im * self.im
     }
     fn div(self, o: Self) -> Self {
         let d = o.norm2();
-        Self::new(
-            (self.re * o.re + self.im * o.im) / d,
-            (self.im * o.re - self.re * o.im) / d,
-        )
+        Self::new((self.re * o.re + self.im * o.im) / d, (self.im * o.re - self.re * o.im) / d)
     }
     /// Principal square root.
     fn sqrt(self) -> Self {
@@ -161,11 +145,7 @@ impl Complex {
         }
         let t1 = (0.5 * (n + self.re.abs())).sqrt();
         let t2 = 0.5 * self.im / t1;
-        if self.re >= 0.0 {
-            Self::new(t1, t2)
-        } else {
-            Self::new(t2.abs(), t1.copysign(self.im))
-        }
+        if self.re >= 0.0 { Self::new(t1, t2) } else { Self::new(t2.abs(), t1.copysign(self.im)) }
     }
 }
 

@@ -31,14 +31,7 @@ fn directions() -> Vec<Vec3> {
         deg(120.0),
         deg(180.0),
     ];
-    let phis = [
-        0.0,
-        0.3,
-        std::f64::consts::FRAC_PI_2,
-        2.0,
-        std::f64::consts::PI,
-        4.5,
-    ];
+    let phis = [0.0, 0.3, std::f64::consts::FRAC_PI_2, 2.0, std::f64::consts::PI, 4.5];
     let mut v = Vec::new();
     for &t in &thetas {
         for &p in &phis {
@@ -52,17 +45,10 @@ fn directions() -> Vec<Vec3> {
 
 fn assert_valid(name: &str, alpha: f32, i: Vec3, o: Vec3, f: Vec3) {
     for c in f.to_array() {
-        assert!(
-            c.is_finite() && c >= 0.0,
-            "{name} alpha {alpha}: f({i:?}, {o:?}) = {f:?}"
-        );
+        assert!(c.is_finite() && c >= 0.0, "{name} alpha {alpha}: f({i:?}, {o:?}) = {f:?}");
     }
     if i.z <= 0.0 || o.z <= 0.0 {
-        assert_eq!(
-            f,
-            Vec3::ZERO,
-            "{name}: nonzero below horizon for i {i:?} o {o:?}"
-        );
+        assert_eq!(f, Vec3::ZERO, "{name}: nonzero below horizon for i {i:?} o {o:?}");
     }
 }
 
@@ -92,28 +78,15 @@ fn every_model_is_finite_and_non_negative_over_the_extreme_grid() {
 #[test]
 fn sampling_is_finite_at_the_extremes() {
     let dirs = directions();
-    let us = [
-        Vec2::ZERO,
-        Vec2::new(0.5, 0.5),
-        Vec2::new(0.999_999, 0.999_999),
-        Vec2::new(1e-7, 0.7),
-        Vec2::new(0.3, 1e-7),
-    ];
+    let us =
+        [Vec2::ZERO, Vec2::new(0.5, 0.5), Vec2::new(0.999_999, 0.999_999), Vec2::new(1e-7, 0.7), Vec2::new(0.3, 1e-7)];
     for &alpha in &ROUGHNESS {
         for e in catalog::models(alpha, 3.0, 0.3, 0.7, Some(NdfGrid::new(16, 32).unwrap())) {
             for &o in &dirs {
                 for &u in &us {
                     if let Some(s) = e.brdf.sample(o, u) {
-                        assert!(
-                            s.i.is_finite() && s.pdf.is_finite() && s.pdf > 0.0,
-                            "{} alpha {alpha}: {s:?}",
-                            e.name
-                        );
-                        assert!(
-                            (s.i.length() - 1.0).abs() < 1e-3,
-                            "{}: unnormalised sample {s:?}",
-                            e.name
-                        );
+                        assert!(s.i.is_finite() && s.pdf.is_finite() && s.pdf > 0.0, "{} alpha {alpha}: {s:?}", e.name);
+                        assert!((s.i.length() - 1.0).abs() < 1e-3, "{}: unnormalised sample {s:?}", e.name);
                     }
                     let p = e.brdf.pdf(o, Vec3::new(0.3, 0.2, 0.93).normalize());
                     assert!(p.is_finite() && p >= 0.0, "{} pdf {p}", e.name);
@@ -139,17 +112,10 @@ fn analytic_ndfs_are_finite_for_extreme_roughness() {
                 let s = n.projected_area(h);
                 let g = n.g1(h);
                 assert!(d.is_finite() && d >= 0.0, "alpha {alpha}: D({h:?}) = {d}");
-                assert!(
-                    s.is_finite() && s > 0.0,
-                    "alpha {alpha}: sigma({h:?}) = {s}"
-                );
+                assert!(s.is_finite() && s > 0.0, "alpha {alpha}: sigma({h:?}) = {s}");
                 assert!((0.0..=1.0).contains(&g), "alpha {alpha}: G1({h:?}) = {g}");
             }
-            for u in [
-                Vec2::ZERO,
-                Vec2::new(0.999_999_9, 0.5),
-                Vec2::new(0.5, 0.25),
-            ] {
+            for u in [Vec2::ZERO, Vec2::new(0.999_999_9, 0.5), Vec2::new(0.5, 0.25)] {
                 let h = n.sample_h(u);
                 assert!(h.is_finite() && h.z >= 0.0, "alpha {alpha}: sample {h:?}");
             }

@@ -8,11 +8,7 @@ use glam::Vec3;
 use proptest::prelude::*;
 
 fn unit(theta: f32, phi: f32) -> Vec3 {
-    Vec3::new(
-        theta.sin() * phi.cos(),
-        theta.sin() * phi.sin(),
-        theta.cos(),
-    )
+    Vec3::new(theta.sin() * phi.cos(), theta.sin() * phi.sin(), theta.cos())
 }
 
 proptest! {
@@ -37,14 +33,8 @@ proptest! {
 
 #[test]
 fn original_phong_is_not_reciprocal() {
-    let e = catalog::models(0.3, 1.0, 0.3, 0.7, None)
-        .into_iter()
-        .find(|e| e.name == "phong_original")
-        .unwrap();
+    let e = catalog::models(0.3, 1.0, 0.3, 0.7, None).into_iter().find(|e| e.name == "phong_original").unwrap();
     let (i, o) = (unit(1.2, 0.0), unit(0.3, 3.14));
     let (a, b) = (e.brdf.eval(i, o), e.brdf.eval(o, i));
-    assert!(
-        (a - b).abs().max_element() > 0.1 * a.max_element(),
-        "{a:?} {b:?}"
-    );
+    assert!((a - b).abs().max_element() > 0.1 * a.max_element(), "{a:?} {b:?}");
 }

@@ -14,33 +14,21 @@
 use std::sync::OnceLock;
 use std::time::Duration;
 
-use serde::{Deserialize, Serialize};
+pub use frame::MonoNs;
 use tokio::time::Instant;
 
-/// Nanoseconds of `CLOCK_MONOTONIC`.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
-#[serde(transparent)]
-pub struct MonoNs(pub u64);
+/// `CLOCK_MONOTONIC` from a V4L2 buffer's `timeval`.
+pub fn from_timeval(sec: i64, usec: i64) -> MonoNs {
+    MonoNs((sec.max(0) as u64) * 1_000_000_000 + (usec.max(0) as u64) * 1_000)
+}
 
-impl MonoNs {
-    pub fn from_timeval(sec: i64, usec: i64) -> Self {
-        MonoNs((sec.max(0) as u64) * 1_000_000_000 + (usec.max(0) as u64) * 1_000)
-    }
-
-    pub fn saturating_sub(self, other: MonoNs) -> Duration {
-        Duration::from_nanos(self.0.saturating_sub(other.0))
-    }
-
-    pub fn add(self, d: Duration) -> MonoNs {
-        MonoNs(self.0 + d.as_nanos() as u64)
-    }
+/// `a - b`, zero if negative.
+pub fn elapsed(a: MonoNs, b: MonoNs) -> Duration {
+    Duration::from_nanos(a.0.saturating_sub(b.0))
 }
 
 fn clock_monotonic_ns() -> u64 {
-    let mut ts = libc::timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
+    let mut ts = libc::timespec { tv_sec: 0, tv_nsec: 0 };
     // SAFETY: clock_gettime writes into the timespec we pass.
     unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts) };
     ts.tv_sec as u64 * 1_000_000_000 + ts.tv_nsec as u64
@@ -100,9 +88,6 @@ mod tests {
         assert!(d < Duration::from_micros(1));
         let direct = now_mono();
         let diff = direct.0.abs_diff(to_mono(Instant::now()).0);
-        assert!(
-            diff < 1_000_000,
-            "instant and CLOCK_MONOTONIC disagree by {diff} ns"
-        );
+        assert!(diff < 1_000_000, "instant and CLOCK_MONOTONIC disagree by {diff} ns");
     }
 }

@@ -6,6 +6,7 @@
 //! - [`sequence`]: the capture loop that commits only confirmed exposures.
 //! - [`clock`]: the one place that converts between clocks.
 
+pub mod camera;
 pub mod clock;
 pub mod mcu;
 pub mod sequence;

@@ -34,24 +34,12 @@ pub trait Exposer {
     type Item: Send;
     type Error: From<RigError>;
     /// Take the exposure for `shot`; the LED has been lit since `lit_at`.
-    fn expose(
-        &mut self,
-        shot: &Shot,
-        lit_at: Instant,
-    ) -> impl Future<Output = Result<Self::Item, Self::Error>>;
+    fn expose(&mut self, shot: &Shot, lit_at: Instant) -> impl Future<Output = Result<Self::Item, Self::Error>>;
     /// An exposure the rig confirmed.
-    fn commit(
-        &mut self,
-        shot: &Shot,
-        item: Self::Item,
-    ) -> impl Future<Output = Result<(), Self::Error>>;
+    fn commit(&mut self, shot: &Shot, item: Self::Item) -> impl Future<Output = Result<(), Self::Error>>;
     /// An exposure discarded because the rig recovered while it was taken.
     fn discarded(&mut self, shot: &Shot) {
-        tracing::info!(
-            step = shot.step,
-            led = shot.led,
-            "retaking a shot: the rig recovered while it was exposed"
-        );
+        tracing::info!(step = shot.step, led = shot.led, "retaking a shot: the rig recovered while it was exposed");
     }
 }
 

@@ -13,9 +13,7 @@ use std::f32::consts::PI;
 use glam::{Vec2, Vec3};
 use serde::{Deserialize, Serialize};
 
-use super::{
-    Brdf, BrdfSample, both_above, mixture_pdf, sample_mixture, sanitize, specular_probability,
-};
+use super::{Brdf, BrdfSample, both_above, mixture_pdf, sample_mixture, sanitize, specular_probability};
 use crate::fresnel;
 use crate::ndf::{Ndf, PowerCosine, to_lobe_frame};
 use crate::{COS_FLOOR, Rgb, frame};
@@ -35,11 +33,7 @@ pub struct AshikhminShirley {
 impl AshikhminShirley {
     fn exponents(&self) -> (f32, f32) {
         let c = |n: f32| {
-            if n.is_nan() {
-                1.0
-            } else {
-                n.clamp(1.0, MAX_AS_EXPONENT)
-            }
+            if n.is_nan() { 1.0 } else { n.clamp(1.0, MAX_AS_EXPONENT) }
         };
         (c(self.nu), c(self.nv))
     }
@@ -62,8 +56,8 @@ impl AshikhminShirley {
         let (c2, s2) = frame::cos2_sin2_phi(hl);
         let e = nu * c2 + nv * s2;
         let hk = i.dot(h).max(COS_FLOOR);
-        let v = ((nu + 1.0) * (nv + 1.0)).sqrt() / (8.0 * PI) * h.z.max(0.0).powf(e)
-            / (hk * i.z.max(o.z).max(COS_FLOOR));
+        let v =
+            ((nu + 1.0) * (nv + 1.0)).sqrt() / (8.0 * PI) * h.z.max(0.0).powf(e) / (hk * i.z.max(o.z).max(COS_FLOOR));
         if v.is_finite() { v } else { 0.0 }
     }
 }
@@ -94,19 +88,11 @@ impl Brdf for AshikhminShirley {
 
     fn sample(&self, o: Vec3, u: Vec2) -> Option<BrdfSample> {
         let ndf = self.sampling_ndf();
-        sample_mixture(
-            o,
-            u,
-            specular_probability(self.rd, self.rs),
-            |u| ndf.sample_h(u),
-            |h| ndf.pdf_h(h),
-        )
+        sample_mixture(o, u, specular_probability(self.rd, self.rs), |u| ndf.sample_h(u), |h| ndf.pdf_h(h))
     }
 
     fn pdf(&self, o: Vec3, i: Vec3) -> f32 {
         let ndf = self.sampling_ndf();
-        mixture_pdf(o, i, specular_probability(self.rd, self.rs), |h| {
-            ndf.pdf_h(h)
-        })
+        mixture_pdf(o, i, specular_probability(self.rd, self.rs), |h| ndf.pdf_h(h))
     }
 }

@@ -12,9 +12,7 @@ use std::f32::consts::FRAC_1_PI;
 use glam::{Vec2, Vec3};
 use serde::{Deserialize, Serialize};
 
-use super::{
-    Brdf, BrdfSample, both_above, mixture_pdf, sample_mixture, sanitize, specular_probability,
-};
+use super::{Brdf, BrdfSample, both_above, mixture_pdf, sample_mixture, sanitize, specular_probability};
 use crate::fresnel;
 use crate::ndf::{Beckmann, Ndf};
 use crate::{COS_FLOOR, Rgb, frame};
@@ -41,9 +39,7 @@ impl CookTorrance {
         let oh = o.dot(h).max(COS_FLOOR);
         let (ci, co) = (i.z.max(COS_FLOOR), o.z.max(COS_FLOOR));
         // G / (4 ci co) without dividing by a product of two small cosines.
-        let g_over = (1.0 / (4.0 * ci * co))
-            .min(h.z / (2.0 * oh * ci))
-            .min(h.z / (2.0 * oh * co));
+        let g_over = (1.0 / (4.0 * ci * co)).min(h.z / (2.0 * oh * ci)).min(h.z / (2.0 * oh * co));
         let d = Beckmann::isotropic(self.m).d(h);
         let f = fresnel::dielectric(i.dot(h), self.eta.max(1.0 + 1e-4));
         let v = d * f * g_over;
@@ -61,19 +57,11 @@ impl Brdf for CookTorrance {
 
     fn sample(&self, o: Vec3, u: Vec2) -> Option<BrdfSample> {
         let ndf = Beckmann::isotropic(self.m);
-        sample_mixture(
-            o,
-            u,
-            specular_probability(self.kd, self.ks),
-            |u| ndf.sample_h(u),
-            |h| ndf.pdf_h(h),
-        )
+        sample_mixture(o, u, specular_probability(self.kd, self.ks), |u| ndf.sample_h(u), |h| ndf.pdf_h(h))
     }
 
     fn pdf(&self, o: Vec3, i: Vec3) -> f32 {
         let ndf = Beckmann::isotropic(self.m);
-        mixture_pdf(o, i, specular_probability(self.kd, self.ks), |h| {
-            ndf.pdf_h(h)
-        })
+        mixture_pdf(o, i, specular_probability(self.kd, self.ks), |h| ndf.pdf_h(h))
     }
 }

@@ -72,30 +72,14 @@ pub struct He {
 impl He {
     /// A plastic-like surface: `sigma0 = 0.18 um`, `tau = 3 um`, `lambda = 0.55 um`, `eta = 1.5`.
     pub fn plastic(kd: Rgb) -> Self {
-        Self {
-            kd,
-            ks: Vec3::ONE,
-            sigma0_um: 0.18,
-            tau_um: 3.0,
-            wavelength_um: 0.55,
-            eta: 1.5,
-            k: 0.0,
-        }
+        Self { kd, ks: Vec3::ONE, sigma0_um: 0.18, tau_um: 3.0, wavelength_um: 0.55, eta: 1.5, k: 0.0 }
     }
 
     fn params(&self) -> (f64, f64, f64) {
         let pos = |x: f32, lo: f32| {
-            if x.is_finite() {
-                x.max(lo) as f64
-            } else {
-                lo as f64
-            }
+            if x.is_finite() { x.max(lo) as f64 } else { lo as f64 }
         };
-        (
-            pos(self.sigma0_um, 0.0),
-            pos(self.tau_um, 1e-6),
-            pos(self.wavelength_um, 1e-3),
-        )
+        (pos(self.sigma0_um, 0.0), pos(self.tau_um, 1e-6), pos(self.wavelength_um, 1e-3))
     }
 
     /// One-directional shadowing `S1` (eqs. 24-25 with errata).
@@ -123,18 +107,10 @@ impl He {
         }
         let k = |v: Vec3| {
             let tan = ((v.x * v.x + v.y * v.y) as f64).sqrt() / (v.z as f64).max(COS_FLOOR as f64);
-            if tan <= 0.0 {
-                0.0
-            } else {
-                tan * libm::erfc(tau / (2.0 * sigma0 * tan))
-            }
+            if tan <= 0.0 { 0.0 } else { tan * libm::erfc(tau / (2.0 * sigma0 * tan)) }
         };
         let f0 = (k(i) + k(o)) / (8.0 * PI64).sqrt();
-        let mut x = if f0 <= 1.0 {
-            f0
-        } else {
-            (2.0 * f0.ln()).sqrt()
-        };
+        let mut x = if f0 <= 1.0 { f0 } else { (2.0 * f0.ln()).sqrt() };
         for _ in 0..8 {
             let e = (0.5 * x * x).exp();
             let grad = (1.0 + x * x) * e;
@@ -219,10 +195,7 @@ mod tests {
                     .sum::<f64>()
             };
             let limit = rough_limit(g, e_base);
-            assert!(
-                (series - limit).abs() / series < 0.002,
-                "e {e_base}: {series} vs {limit}"
-            );
+            assert!((series - limit).abs() / series < 0.002, "e {e_base}: {series} vs {limit}");
         }
     }
 

@@ -31,11 +31,7 @@ impl LafortuneLobe {
         if !(base > 0.0) {
             return 0.0;
         }
-        let n = if self.n.is_nan() {
-            0.0
-        } else {
-            self.n.clamp(0.0, MAX_LAFORTUNE_EXPONENT)
-        };
+        let n = if self.n.is_nan() { 0.0 } else { self.n.clamp(0.0, MAX_LAFORTUNE_EXPONENT) };
         let v = base.powf(n);
         if v.is_finite() { v } else { 0.0 }
     }
@@ -52,10 +48,7 @@ impl Brdf for Lafortune {
         if !both_above(i, o) {
             return Vec3::ZERO;
         }
-        let spec = self
-            .lobes
-            .iter()
-            .fold(Vec3::ZERO, |acc, l| acc + l.rho * l.value(i, o));
+        let spec = self.lobes.iter().fold(Vec3::ZERO, |acc, l| acc + l.rho * l.value(i, o));
         sanitize(self.kd * FRAC_1_PI + spec)
     }
 }

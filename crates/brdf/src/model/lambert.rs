@@ -15,10 +15,6 @@ pub struct Lambert {
 
 impl Brdf for Lambert {
     fn eval(&self, i: Vec3, o: Vec3) -> Rgb {
-        if both_above(i, o) {
-            self.albedo.max(Vec3::ZERO) * FRAC_1_PI
-        } else {
-            Vec3::ZERO
-        }
+        if both_above(i, o) { self.albedo.max(Vec3::ZERO) * FRAC_1_PI } else { Vec3::ZERO }
     }
 }

@@ -14,9 +14,7 @@ use std::f32::consts::FRAC_1_PI;
 
 use glam::{Vec2, Vec3};
 
-use super::{
-    Brdf, BrdfSample, both_above, mixture_pdf, sample_mixture, sanitize, specular_probability,
-};
+use super::{Brdf, BrdfSample, both_above, mixture_pdf, sample_mixture, sanitize, specular_probability};
 use crate::fresnel::Fresnel;
 use crate::ndf::Ndf;
 use crate::{Rgb, frame};
@@ -61,8 +59,6 @@ impl<N: Ndf> Brdf for Microfacet<N> {
     }
 
     fn pdf(&self, o: Vec3, i: Vec3) -> f32 {
-        mixture_pdf(o, i, specular_probability(self.kd, self.ks), |h| {
-            self.ndf.pdf_h(h)
-        })
+        mixture_pdf(o, i, specular_probability(self.kd, self.ks), |h| self.ndf.pdf_h(h))
     }
 }

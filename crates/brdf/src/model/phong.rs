@@ -6,9 +6,7 @@ use std::f32::consts::{FRAC_1_PI, PI, TAU};
 use glam::{Vec2, Vec3};
 use serde::{Deserialize, Serialize};
 
-use super::{
-    Brdf, BrdfSample, both_above, mixture_pdf, sample_mixture, sanitize, specular_probability,
-};
+use super::{Brdf, BrdfSample, both_above, mixture_pdf, sample_mixture, sanitize, specular_probability};
 use crate::Rgb;
 use crate::frame;
 use crate::ndf::{Ndf, PowerCosine};
@@ -24,11 +22,7 @@ pub const PHONG_COS_FLOOR: f32 = 1e-3;
 pub const MAX_PHONG_EXPONENT: f32 = 1e6;
 
 fn clamp_exponent(n: f32) -> f32 {
-    if n.is_nan() {
-        0.0
-    } else {
-        n.clamp(0.0, MAX_PHONG_EXPONENT)
-    }
+    if n.is_nan() { 0.0 } else { n.clamp(0.0, MAX_PHONG_EXPONENT) }
 }
 
 /// Phong 1975 as in the talk: `f = ks (o . r)^n / (n . i)`, `r` the mirror of
@@ -97,8 +91,7 @@ impl Brdf for PhongModified {
             return 0.0;
         }
         let p = specular_probability(self.kd, self.ks);
-        p * phong_lobe_pdf(o, i, clamp_exponent(self.exponent))
-            + (1.0 - p) * frame::cosine_hemisphere_pdf(i)
+        p * phong_lobe_pdf(o, i, clamp_exponent(self.exponent)) + (1.0 - p) * frame::cosine_hemisphere_pdf(i)
     }
 }
 
@@ -133,9 +126,7 @@ impl Brdf for BlinnPhong {
 
     fn pdf(&self, o: Vec3, i: Vec3) -> f32 {
         let ndf = PowerCosine::isotropic(clamp_exponent(self.exponent));
-        mixture_pdf(o, i, specular_probability(self.kd, self.ks), |h| {
-            ndf.pdf_h(h)
-        })
+        mixture_pdf(o, i, specular_probability(self.kd, self.ks), |h| ndf.pdf_h(h))
     }
 }
 

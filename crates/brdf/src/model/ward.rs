@@ -15,9 +15,7 @@ use std::f32::consts::{FRAC_1_PI, PI};
 use glam::{Vec2, Vec3};
 use serde::{Deserialize, Serialize};
 
-use super::{
-    Brdf, BrdfSample, both_above, mixture_pdf, sample_mixture, sanitize, specular_probability,
-};
+use super::{Brdf, BrdfSample, both_above, mixture_pdf, sample_mixture, sanitize, specular_probability};
 use crate::ndf::{Beckmann, Ndf, clamp_alpha, to_lobe_frame};
 use crate::{COS_FLOOR, Rgb};
 
@@ -43,14 +41,7 @@ pub struct Ward {
 
 impl Ward {
     pub fn isotropic(kd: Rgb, ks: Rgb, alpha: f32, normalisation: WardNormalisation) -> Self {
-        Self {
-            kd,
-            ks,
-            alpha_x: alpha,
-            alpha_y: alpha,
-            angle_rad: 0.0,
-            normalisation,
-        }
+        Self { kd, ks, alpha_x: alpha, alpha_y: alpha, angle_rad: 0.0, normalisation }
     }
 
     /// The specular lobe alone, per unit `ks`.
@@ -94,19 +85,11 @@ impl Brdf for Ward {
 
     fn sample(&self, o: Vec3, u: Vec2) -> Option<BrdfSample> {
         let ndf = self.sampling_ndf();
-        sample_mixture(
-            o,
-            u,
-            specular_probability(self.kd, self.ks),
-            |u| ndf.sample_h(u),
-            |h| ndf.pdf_h(h),
-        )
+        sample_mixture(o, u, specular_probability(self.kd, self.ks), |u| ndf.sample_h(u), |h| ndf.pdf_h(h))
     }
 
     fn pdf(&self, o: Vec3, i: Vec3) -> f32 {
         let ndf = self.sampling_ndf();
-        mixture_pdf(o, i, specular_probability(self.kd, self.ks), |h| {
-            ndf.pdf_h(h)
-        })
+        mixture_pdf(o, i, specular_probability(self.kd, self.ks), |h| ndf.pdf_h(h))
     }
 }

@@ -23,11 +23,7 @@ pub struct Ggx {
 
 impl Ggx {
     pub fn new(alpha_x: f32, alpha_y: f32, angle_rad: f32) -> Self {
-        Self {
-            alpha_x: clamp_alpha(alpha_x),
-            alpha_y: clamp_alpha(alpha_y),
-            angle_rad,
-        }
+        Self { alpha_x: clamp_alpha(alpha_x), alpha_y: clamp_alpha(alpha_y), angle_rad }
     }
 
     pub fn isotropic(alpha: f32) -> Self {

@@ -46,10 +46,7 @@ pub struct MaskingOperator {
 
 impl std::fmt::Debug for MaskingOperator {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("MaskingOperator")
-            .field("grid", &self.grid)
-            .field("n_theta_k", &self.n_theta_k)
-            .finish()
+        f.debug_struct("MaskingOperator").field("grid", &self.grid).field("n_theta_k", &self.n_theta_k).finish()
     }
 }
 
@@ -76,11 +73,7 @@ impl MaskingOperator {
                 for (delta, slot) in row.iter_mut().enumerate() {
                     // Offsets are symmetric: sector `delta` and `np - delta`
                     // see the same kernel; use the signed offset.
-                    let off = if delta <= np / 2 {
-                        delta as f32
-                    } else {
-                        delta as f32 - np as f32
-                    };
+                    let off = if delta <= np / 2 { delta as f32 } else { delta as f32 - np as f32 };
                     let mut acc = 0.0f64;
                     for a in 0..KERNEL_SUB_THETA {
                         let th = th0 + (th1 - th0) * (a as f32 + 0.5) / KERNEL_SUB_THETA as f32;
@@ -99,13 +92,7 @@ impl MaskingOperator {
                 fft.process(row);
             }
         }
-        Self {
-            grid,
-            n_theta_k,
-            kernel,
-            fft,
-            ifft,
-        }
+        Self { grid, n_theta_k, kernel, fft, ifft }
     }
 
     pub fn grid(&self) -> NdfGrid {
@@ -115,11 +102,7 @@ impl MaskingOperator {
     /// Projected areas `sigma(k)` of a table (which should be normalised) at
     /// every direction of the masking grid.
     pub fn projected_areas(&self, table: &NdfTable) -> MaskingTable {
-        assert_eq!(
-            table.grid(),
-            self.grid,
-            "masking operator built for another grid"
-        );
+        assert_eq!(table.grid(), self.grid, "masking operator built for another grid");
         let (nt, np) = (self.grid.n_theta as usize, self.grid.n_phi as usize);
         let mut spectra = vec![Complex32::new(0.0, 0.0); nt * np];
         for t in 0..nt {
@@ -148,11 +131,7 @@ impl MaskingOperator {
                 sigma[j * np + q] = (acc[q].re * scale).max(0.0);
             }
         }
-        MaskingTable {
-            n_theta_k: self.n_theta_k,
-            n_phi: np,
-            sigma,
-        }
+        MaskingTable { n_theta_k: self.n_theta_k, n_phi: np, sigma }
     }
 }
 
@@ -184,20 +163,12 @@ impl MaskingTable {
         let a = s(j0, q0) * (1.0 - fq) + s(j0, q1) * fq;
         let b = s(j0 + 1, q0) * (1.0 - fq) + s(j0 + 1, q1) * fq;
         let sigma = a * (1.0 - fj) + b * fj;
-        if sigma.is_finite() {
-            sigma.max(v.z)
-        } else {
-            v.z.max(MIN_SIGMA)
-        }
+        if sigma.is_finite() { sigma.max(v.z) } else { v.z.max(MIN_SIGMA) }
     }
 
     /// Smith masking `S(v) = cos(theta_v) / sigma(v)`.
     pub fn g1(&self, v: Vec3) -> f32 {
-        if v.z <= 0.0 {
-            0.0
-        } else {
-            (v.z / self.projected_area(v)).clamp(0.0, 1.0)
-        }
+        if v.z <= 0.0 { 0.0 } else { (v.z / self.projected_area(v)).clamp(0.0, 1.0) }
     }
 
     /// Raw `sigma` values, `[j][q]`.

@@ -17,14 +17,18 @@
 mod beckmann;
 mod ggx;
 mod masking;
+mod mixture;
 mod power_cosine;
+mod sheen;
 mod table;
 mod tabulated;
 
 pub use beckmann::Beckmann;
 pub use ggx::Ggx;
 pub use masking::{MaskingOperator, MaskingTable};
+pub use mixture::Mixture;
 pub use power_cosine::PowerCosine;
+pub use sheen::Sheen;
 pub use table::{Coverage, NdfGrid, NdfTable, TableError};
 pub use tabulated::TabulatedNdf;
 
@@ -43,11 +47,7 @@ pub trait Ndf: Send + Sync {
 
     /// Smith masking `S(v) = cos(theta_v) / sigma(v)` in `[0, 1]`.
     fn g1(&self, v: Vec3) -> f32 {
-        if v.z <= 0.0 {
-            0.0
-        } else {
-            (v.z / self.projected_area(v)).clamp(0.0, 1.0)
-        }
+        if v.z <= 0.0 { 0.0 } else { (v.z / self.projected_area(v)).clamp(0.0, 1.0) }
     }
 
     /// Draw a microfacet normal with density [`Ndf::pdf_h`] from two uniform
@@ -61,6 +61,21 @@ pub trait Ndf: Send + Sync {
 }
 
 impl<N: Ndf + ?Sized> Ndf for &N {
+    fn d(&self, h: Vec3) -> f32 {
+        (**self).d(h)
+    }
+    fn projected_area(&self, v: Vec3) -> f32 {
+        (**self).projected_area(v)
+    }
+    fn sample_h(&self, u: Vec2) -> Vec3 {
+        (**self).sample_h(u)
+    }
+    fn pdf_h(&self, h: Vec3) -> f32 {
+        (**self).pdf_h(h)
+    }
+}
+
+impl<N: Ndf + ?Sized> Ndf for std::sync::Arc<N> {
     fn d(&self, h: Vec3) -> f32 {
         (**self).d(h)
     }
@@ -99,32 +114,20 @@ pub const MIN_ALPHA: f32 = 1e-4;
 /// Clamp a roughness parameter into the supported range `[MIN_ALPHA, 4]`,
 /// mapping NaN to `MIN_ALPHA`.
 pub fn clamp_alpha(alpha: f32) -> f32 {
-    if alpha.is_nan() {
-        MIN_ALPHA
-    } else {
-        alpha.clamp(MIN_ALPHA, 4.0)
-    }
+    if alpha.is_nan() { MIN_ALPHA } else { alpha.clamp(MIN_ALPHA, 4.0) }
 }
 
 /// Rotate a direction from the sample frame into a lobe frame whose x axis
 /// is at `angle_rad` from the sample's x axis.
 #[inline]
 pub(crate) fn to_lobe_frame(v: Vec3, angle_rad: f32) -> Vec3 {
-    if angle_rad == 0.0 {
-        v
-    } else {
-        crate::frame::rotate_z(v, -angle_rad)
-    }
+    if angle_rad == 0.0 { v } else { crate::frame::rotate_z(v, -angle_rad) }
 }
 
 /// Rotate a direction from a lobe frame back into the sample frame.
 #[inline]
 pub(crate) fn from_lobe_frame(v: Vec3, angle_rad: f32) -> Vec3 {
-    if angle_rad == 0.0 {
-        v
-    } else {
-        crate::frame::rotate_z(v, angle_rad)
-    }
+    if angle_rad == 0.0 { v } else { crate::frame::rotate_z(v, angle_rad) }
 }
 
 /// A normal built from slopes `(sx, sy)`: `normalize(-sx, -sy, 1)`.

@@ -33,17 +33,9 @@ pub struct PowerCosine {
 impl PowerCosine {
     pub fn new(nu: f32, nv: f32, angle_rad: f32) -> Self {
         let clamp = |n: f32| {
-            if n.is_nan() {
-                0.0
-            } else {
-                n.clamp(0.0, MAX_EXPONENT)
-            }
+            if n.is_nan() { 0.0 } else { n.clamp(0.0, MAX_EXPONENT) }
         };
-        Self {
-            nu: clamp(nu),
-            nv: clamp(nv),
-            angle_rad,
-        }
+        Self { nu: clamp(nu), nv: clamp(nv), angle_rad }
     }
 
     pub fn isotropic(n: f32) -> Self {
@@ -56,11 +48,7 @@ impl PowerCosine {
     }
 
     fn beckmann_equivalent(&self) -> Beckmann {
-        Beckmann::new(
-            (2.0 / (self.nu + 2.0)).sqrt(),
-            (2.0 / (self.nv + 2.0)).sqrt(),
-            self.angle_rad,
-        )
+        Beckmann::new((2.0 / (self.nu + 2.0)).sqrt(), (2.0 / (self.nv + 2.0)).sqrt(), self.angle_rad)
     }
 }
 

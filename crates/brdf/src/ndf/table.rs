@@ -25,20 +25,11 @@ use crate::frame;
 /// Errors from building or reading a table.
 #[derive(Debug, Error, PartialEq)]
 pub enum TableError {
-    #[error(
-        "table grid {n_theta} x {n_phi} is not usable: need 2..=512 rings and 4..=4096 sectors"
-    )]
+    #[error("table grid {n_theta} x {n_phi} is not usable: need 2..=512 rings and 4..=4096 sectors")]
     BadGrid { n_theta: u32, n_phi: u32 },
     #[error("table holds {got} values but its {n_theta} x {n_phi} grid needs {want}")]
-    WrongLength {
-        n_theta: u32,
-        n_phi: u32,
-        got: usize,
-        want: usize,
-    },
-    #[error(
-        "table value at cell {index} is {value}, but NDF values must be finite and non-negative"
-    )]
+    WrongLength { n_theta: u32, n_phi: u32, got: usize, want: usize },
+    #[error("table value at cell {index} is {value}, but NDF values must be finite and non-negative")]
     BadValue { index: usize, value: f32 },
 }
 
@@ -57,10 +48,7 @@ impl Default for NdfGrid {
 
 impl NdfGrid {
     /// The talk's 3,072-cell table.
-    pub const DEFAULT: NdfGrid = NdfGrid {
-        n_theta: 32,
-        n_phi: 96,
-    };
+    pub const DEFAULT: NdfGrid = NdfGrid { n_theta: 32, n_phi: 96 };
 
     pub fn new(n_theta: u32, n_phi: u32) -> Result<Self, TableError> {
         if !(2..=512).contains(&n_theta) || !(4..=4096).contains(&n_phi) {
@@ -155,10 +143,7 @@ pub struct Coverage {
 
 impl Coverage {
     pub fn empty(len: usize) -> Self {
-        Self {
-            len,
-            bits: vec![0; len.div_ceil(64)],
-        }
+        Self { len, bits: vec![0; len.div_ceil(64)] }
     }
 
     pub fn full(len: usize) -> Self {
@@ -199,20 +184,12 @@ impl Coverage {
 
     /// Number of cells covered in both.
     pub fn and_count(&self, other: &Coverage) -> usize {
-        self.bits
-            .iter()
-            .zip(&other.bits)
-            .map(|(a, b)| (a & b).count_ones() as usize)
-            .sum()
+        self.bits.iter().zip(&other.bits).map(|(a, b)| (a & b).count_ones() as usize).sum()
     }
 
     /// Number of cells covered in `other` but not in `self`.
     pub fn gain_count(&self, other: &Coverage) -> usize {
-        self.bits
-            .iter()
-            .zip(&other.bits)
-            .map(|(a, b)| (!a & b).count_ones() as usize)
-            .sum()
+        self.bits.iter().zip(&other.bits).map(|(a, b)| (!a & b).count_ones() as usize).sum()
     }
 
     pub fn union_with(&mut self, other: &Coverage) {
@@ -249,20 +226,12 @@ pub struct NdfTable {
 impl NdfTable {
     /// An all-zero table with nothing observed.
     pub fn zeros(grid: NdfGrid) -> Self {
-        Self {
-            grid,
-            values: vec![0.0; grid.len()],
-            coverage: Coverage::empty(grid.len()),
-        }
+        Self { grid, values: vec![0.0; grid.len()], coverage: Coverage::empty(grid.len()) }
     }
 
     /// A table from values, checking length and that every value is finite
     /// and non-negative.
-    pub fn from_values(
-        grid: NdfGrid,
-        values: Vec<f32>,
-        coverage: Coverage,
-    ) -> Result<Self, TableError> {
+    pub fn from_values(grid: NdfGrid, values: Vec<f32>, coverage: Coverage) -> Result<Self, TableError> {
         if values.len() != grid.len() || coverage.len() != grid.len() {
             return Err(TableError::WrongLength {
                 n_theta: grid.n_theta,
@@ -271,18 +240,10 @@ impl NdfTable {
                 want: grid.len(),
             });
         }
-        if let Some((index, &value)) = values
-            .iter()
-            .enumerate()
-            .find(|(_, v)| !v.is_finite() || **v < 0.0)
-        {
+        if let Some((index, &value)) = values.iter().enumerate().find(|(_, v)| !v.is_finite() || **v < 0.0) {
             return Err(TableError::BadValue { index, value });
         }
-        Ok(Self {
-            grid,
-            values,
-            coverage,
-        })
+        Ok(Self { grid, values, coverage })
     }
 
     /// Cosine-weighted cell averages of `f`, with `sub x sub` stratified
@@ -292,10 +253,7 @@ impl NdfTable {
         let sub = sub.max(1);
         let mut values = vec![0.0; grid.len()];
         for t in 0..grid.n_theta as usize {
-            let (s0, s1) = (
-                grid.theta_edge(t).sin().powi(2),
-                grid.theta_edge(t + 1).sin().powi(2),
-            );
+            let (s0, s1) = (grid.theta_edge(t).sin().powi(2), grid.theta_edge(t + 1).sin().powi(2));
             for p in 0..grid.n_phi as usize {
                 let mut acc = 0.0f64;
                 for a in 0..sub {
@@ -313,11 +271,7 @@ impl NdfTable {
                 values[grid.index(t, p)] = (acc / (sub * sub) as f64) as f32;
             }
         }
-        Self {
-            grid,
-            values,
-            coverage: Coverage::full(grid.len()),
-        }
+        Self { grid, values, coverage: Coverage::full(grid.len()) }
     }
 
     /// Resample any NDF into a table (cell averages, fully observed).
@@ -359,10 +313,7 @@ impl NdfTable {
         let n_phi = self.grid.n_phi as usize;
         let mut acc = 0.0f64;
         for t in 0..self.grid.n_theta as usize {
-            let ring: f64 = self.values[t * n_phi..(t + 1) * n_phi]
-                .iter()
-                .map(|&v| v as f64)
-                .sum();
+            let ring: f64 = self.values[t * n_phi..(t + 1) * n_phi].iter().map(|&v| v as f64).sum();
             acc += ring * self.grid.cos_measure(t) as f64;
         }
         acc as f32
@@ -422,11 +373,8 @@ impl NdfTable {
                 let b = self.grid.index(t, (p + 2 * np - s0 - 1) % np);
                 let dst = self.grid.index(t, p);
                 out.values[dst] = self.values[a] * (1.0 - f) + self.values[b] * f;
-                let covered = if f == 0.0 {
-                    self.coverage.get(a)
-                } else {
-                    self.coverage.get(a) && self.coverage.get(b)
-                };
+                let covered =
+                    if f == 0.0 { self.coverage.get(a) } else { self.coverage.get(a) && self.coverage.get(b) };
                 out.coverage.set(dst, covered);
             }
         }
@@ -471,13 +419,9 @@ mod tests {
     #[test]
     fn cos_measure_sums_to_pi() {
         let g = NdfGrid::DEFAULT;
-        let s: f32 = (0..g.n_theta as usize)
-            .map(|t| g.cos_measure(t) * g.n_phi as f32)
-            .sum();
+        let s: f32 = (0..g.n_theta as usize).map(|t| g.cos_measure(t) * g.n_phi as f32).sum();
         assert!((s - std::f32::consts::PI).abs() < 1e-5, "{s}");
-        let w: f32 = (0..g.n_theta as usize)
-            .map(|t| g.solid_angle(t) * g.n_phi as f32)
-            .sum();
+        let w: f32 = (0..g.n_theta as usize).map(|t| g.solid_angle(t) * g.n_phi as f32).sum();
         assert!((w - TAU).abs() < 1e-4, "{w}");
     }
 
@@ -530,10 +474,7 @@ mod tests {
         ));
         let mut v = vec![0.0; 8];
         v[3] = f32::NAN;
-        assert!(matches!(
-            NdfTable::from_values(g, v, Coverage::empty(8)),
-            Err(TableError::BadValue { index: 3, .. })
-        ));
+        assert!(matches!(NdfTable::from_values(g, v, Coverage::empty(8)), Err(TableError::BadValue { index: 3, .. })));
         assert!(NdfGrid::new(1, 4).is_err());
     }
 }

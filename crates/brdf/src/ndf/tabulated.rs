@@ -44,12 +44,7 @@ impl TabulatedNdf {
         if mass > 0.0 {
             cdf.iter_mut().for_each(|c| *c /= mass);
         }
-        Self {
-            table,
-            masking: masking_table,
-            cdf,
-            mass,
-        }
+        Self { table, masking: masking_table, cdf, mass }
     }
 
     pub fn table(&self) -> &NdfTable {
@@ -75,24 +70,14 @@ impl Ndf for TabulatedNdf {
         if !(self.mass > 0.0) {
             return Vec3::Z;
         }
-        let idx = self
-            .cdf
-            .partition_point(|&c| c <= u.x)
-            .min(self.cdf.len() - 1);
+        let idx = self.cdf.partition_point(|&c| c <= u.x).min(self.cdf.len() - 1);
         // Reuse the position of u.x inside the chosen cell's cdf interval as
         // the first in-cell coordinate (keeps stratification of u).
         let lo = if idx == 0 { 0.0 } else { self.cdf[idx - 1] };
         let hi = self.cdf[idx];
-        let a = if hi > lo {
-            ((u.x - lo) / (hi - lo)).clamp(0.0, 1.0)
-        } else {
-            0.5
-        };
+        let a = if hi > lo { ((u.x - lo) / (hi - lo)).clamp(0.0, 1.0) } else { 0.5 };
         let (t, p) = (idx / grid.n_phi as usize, idx % grid.n_phi as usize);
-        let (s0, s1) = (
-            grid.theta_edge(t).sin().powi(2),
-            grid.theta_edge(t + 1).sin().powi(2),
-        );
+        let (s0, s1) = (grid.theta_edge(t).sin().powi(2), grid.theta_edge(t + 1).sin().powi(2));
         let s2 = s0 + (s1 - s0) * a;
         let (st, ct) = (s2.sqrt(), (1.0 - s2).max(0.0).sqrt());
         let ph = (p as f32 + u.y) * grid.dphi();

@@ -14,11 +14,7 @@ pub fn rng(seed: u64) -> Pcg64 {
 }
 
 pub fn dir(theta: f64, phi: f64) -> Vec3 {
-    Vec3::new(
-        (theta.sin() * phi.cos()) as f32,
-        (theta.sin() * phi.sin()) as f32,
-        theta.cos() as f32,
-    )
+    Vec3::new((theta.sin() * phi.cos()) as f32, (theta.sin() * phi.sin()) as f32, theta.cos() as f32)
 }
 
 /// Integral of `f` over the upper hemisphere with rings warped toward the
@@ -46,10 +42,7 @@ pub fn albedo_sampled(b: &dyn Brdf, o: Vec3, n: usize, seed: u64) -> f64 {
     let mut acc = 0.0;
     for a in 0..n {
         for c in 0..n {
-            let u = Vec2::new(
-                (a as f32 + r.random::<f32>()) / n as f32,
-                (c as f32 + r.random::<f32>()) / n as f32,
-            );
+            let u = Vec2::new((a as f32 + r.random::<f32>()) / n as f32, (c as f32 + r.random::<f32>()) / n as f32);
             if let Some(s) = b.sample(o, u.min(Vec2::splat(0.999_999))) {
                 let f = b.eval(s.i, o);
                 acc += (f.x as f64) * s.i.z as f64 / s.pdf as f64;
@@ -163,11 +156,7 @@ pub fn chi2_test(
     }
     // Samples that fail or land below the horizon are the missing mass.
     expected[NT * NP] = ((1.0 - total) * n_samples as f64).max(0.0);
-    let mut pairs: Vec<(f64, f64)> = expected
-        .iter()
-        .copied()
-        .zip(observed.iter().copied())
-        .collect();
+    let mut pairs: Vec<(f64, f64)> = expected.iter().copied().zip(observed.iter().copied()).collect();
     pairs.sort_by(|a, b| a.0.partial_cmp(&b.0).unwrap());
     let (mut chi2, mut dof, mut pool_e, mut pool_o) = (0.0, 0usize, 0.0, 0.0);
     for (e, o) in pairs {
@@ -185,8 +174,5 @@ pub fn chi2_test(
     }
     let dof = dof.saturating_sub(1).max(1);
     let p = gamma_q(dof as f64 / 2.0, chi2 / 2.0);
-    (
-        p,
-        format!("chi2 = {chi2:.1}, dof = {dof}, integral of pdf = {total:.4}"),
-    )
+    (p, format!("chi2 = {chi2:.1}, dof = {dof}, integral of pdf = {total:.4}"))
 }

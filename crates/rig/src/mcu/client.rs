@@ -12,8 +12,8 @@ use std::time::Duration;
 use firmware_protocol::frame::Push;
 use firmware_protocol::timing::{MAX_RETRIES, REPLY_TIMEOUT_MS};
 use firmware_protocol::{
-    Command, CommandPacket, FrameAccumulator, HelloInfo, MAX_FRAME_LEN, NakReason,
-    PROTOCOL_VERSION, Reply, ReplyPacket, StatusInfo, next_seq,
+    Command, CommandPacket, FrameAccumulator, HelloInfo, MAX_FRAME_LEN, NakReason, PROTOCOL_VERSION, Reply,
+    ReplyPacket, StatusInfo, next_seq,
 };
 use thiserror::Error;
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
@@ -22,28 +22,17 @@ use tokio::time::Instant;
 /// What went wrong on the link. Messages say what to check.
 #[derive(Debug, Error)]
 pub enum LinkError {
-    #[error(
-        "serial port error: {0} (is the rig's USB cable connected and the port not used by another program?)"
-    )]
+    #[error("serial port error: {0} (is the rig's USB cable connected and the port not used by another program?)")]
     Io(#[from] io::Error),
     #[error(
         "no reply to {command} after {attempts} attempts over {ms} ms (check the rig's power and USB cable; \
          the MCU may be hung)"
     )]
-    Timeout {
-        command: &'static str,
-        attempts: u32,
-        ms: u64,
-    },
-    #[error(
-        "the rig's microcontroller restarted (boot id {old:#010x} -> {new:#010x}); it must be homed again"
-    )]
+    Timeout { command: &'static str, attempts: u32, ms: u64 },
+    #[error("the rig's microcontroller restarted (boot id {old:#010x} -> {new:#010x}); it must be homed again")]
     Rebooted { old: u32, new: u32 },
     #[error("the rig refused {command}: {reason:?}")]
-    Nak {
-        command: &'static str,
-        reason: NakReason,
-    },
+    Nak { command: &'static str, reason: NakReason },
     #[error("the serial link closed")]
     Closed,
     #[error("unexpected reply to {command}: {reply:?}")]
@@ -58,10 +47,7 @@ pub enum LinkError {
 impl LinkError {
     /// The link itself failed (as opposed to the MCU answering).
     pub fn is_link_down(&self) -> bool {
-        matches!(
-            self,
-            LinkError::Io(_) | LinkError::Timeout { .. } | LinkError::Closed
-        )
+        matches!(self, LinkError::Io(_) | LinkError::Timeout { .. } | LinkError::Closed)
     }
 }
 
@@ -190,10 +176,7 @@ impl<T: AsyncRead + AsyncWrite + Unpin> McuClient<T> {
             if p.boot_id != old {
                 self.boot_id = None;
                 self.motion_seq = None;
-                return Err(LinkError::Rebooted {
-                    old,
-                    new: p.boot_id,
-                });
+                return Err(LinkError::Rebooted { old, new: p.boot_id });
             }
         }
         if p.reply == Reply::Boot {
@@ -222,9 +205,7 @@ impl<T: AsyncRead + AsyncWrite + Unpin> McuClient<T> {
         self.seq = next_seq(self.seq);
         let seq = self.seq;
         let mut frame = [0u8; MAX_FRAME_LEN];
-        let n = CommandPacket { seq, command }
-            .encode(&mut frame)
-            .map_err(|_| LinkError::Closed)?;
+        let n = CommandPacket { seq, command }.encode(&mut frame).map_err(|_| LinkError::Closed)?;
         self.stats.commands += 1;
         let started = Instant::now();
         for attempt in 0..=self.max_retries {
@@ -249,10 +230,7 @@ impl<T: AsyncRead + AsyncWrite + Unpin> McuClient<T> {
                         mcu: self.info.map_or(0, |i| i.protocol_version),
                         host: PROTOCOL_VERSION,
                     }),
-                    Reply::Nak(reason) => Err(LinkError::Nak {
-                        command: name,
-                        reason,
-                    }),
+                    Reply::Nak(reason) => Err(LinkError::Nak { command: name, reason }),
                     _ => Ok(p),
                 };
             }
@@ -283,19 +261,13 @@ impl<T: AsyncRead + AsyncWrite + Unpin> McuClient<T> {
         match p.reply {
             Reply::Hello(h) => {
                 if h.protocol_version != PROTOCOL_VERSION {
-                    return Err(LinkError::Version {
-                        mcu: h.protocol_version,
-                        host: PROTOCOL_VERSION,
-                    });
+                    return Err(LinkError::Version { mcu: h.protocol_version, host: PROTOCOL_VERSION });
                 }
                 self.info = Some(h);
                 self.boot_id = Some(p.boot_id);
                 Ok(h)
             }
-            r => Err(LinkError::Unexpected {
-                command: "Hello",
-                reply: r,
-            }),
+            r => Err(LinkError::Unexpected { command: "Hello", reply: r }),
         }
     }
 
@@ -304,10 +276,7 @@ impl<T: AsyncRead + AsyncWrite + Unpin> McuClient<T> {
         let p = self.request(command).await?;
         match p.reply {
             Reply::Ack => Ok(p.seq),
-            r => Err(LinkError::Unexpected {
-                command: name,
-                reply: r,
-            }),
+            r => Err(LinkError::Unexpected { command: name, reply: r }),
         }
     }
 
@@ -328,10 +297,7 @@ impl<T: AsyncRead + AsyncWrite + Unpin> McuClient<T> {
                 self.motion_done = Some(position_um);
                 Ok(())
             }
-            r => Err(LinkError::Unexpected {
-                command: name,
-                reply: r,
-            }),
+            r => Err(LinkError::Unexpected { command: name, reply: r }),
         }
     }
 
@@ -357,9 +323,7 @@ impl<T: AsyncRead + AsyncWrite + Unpin> McuClient<T> {
             let now = Instant::now();
             if now >= poll_from {
                 let s = self.status().await?;
-                if self.motion_done.is_none()
-                    && !s.flags.has(firmware_protocol::StatusFlags::MOVING)
-                {
+                if self.motion_done.is_none() && !s.flags.has(firmware_protocol::StatusFlags::MOVING) {
                     tracing::debug!("MoveDone missing; Status shows the move finished");
                     self.motion_seq = None;
                     return Ok(s.position_um);
@@ -373,11 +337,7 @@ impl<T: AsyncRead + AsyncWrite + Unpin> McuClient<T> {
                 }
             }
             let beat_at = self.last_tx + heartbeat;
-            let next_poll = if now >= poll_from {
-                now + MOTION_POLL
-            } else {
-                poll_from
-            };
+            let next_poll = if now >= poll_from { now + MOTION_POLL } else { poll_from };
             let deadline = next_poll.min(beat_at.max(now + Duration::from_millis(1)));
             match self.next_reply(deadline).await? {
                 Some(p) => {
@@ -397,26 +357,12 @@ impl<T: AsyncRead + AsyncWrite + Unpin> McuClient<T> {
     pub async fn status(&mut self) -> Result<StatusInfo, LinkError> {
         match self.request(Command::Status).await?.reply {
             Reply::Status(s) => Ok(s),
-            r => Err(LinkError::Unexpected {
-                command: "Status",
-                reply: r,
-            }),
+            r => Err(LinkError::Unexpected { command: "Status", reply: r }),
         }
     }
 
-    pub async fn set_led(
-        &mut self,
-        led: u8,
-        current_ma: u16,
-        max_on_ms: u16,
-    ) -> Result<(), LinkError> {
-        self.expect_ack(Command::SetLed {
-            led,
-            current_ma,
-            max_on_ms,
-        })
-        .await
-        .map(|_| ())
+    pub async fn set_led(&mut self, led: u8, current_ma: u16, max_on_ms: u16) -> Result<(), LinkError> {
+        self.expect_ack(Command::SetLed { led, current_ma, max_on_ms }).await.map(|_| ())
     }
 
     pub async fn all_off(&mut self) -> Result<(), LinkError> {
@@ -441,12 +387,7 @@ impl<T: AsyncRead + AsyncWrite + Unpin> McuClient<T> {
     pub fn encode_all_off(&mut self) -> Vec<u8> {
         self.seq = next_seq(self.seq);
         let mut frame = [0u8; MAX_FRAME_LEN];
-        let n = CommandPacket {
-            seq: self.seq,
-            command: Command::AllOff,
-        }
-        .encode(&mut frame)
-        .unwrap_or(0);
+        let n = CommandPacket { seq: self.seq, command: Command::AllOff }.encode(&mut frame).unwrap_or(0);
         frame[..n].to_vec()
     }
 

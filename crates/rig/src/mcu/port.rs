@@ -22,11 +22,7 @@ pub enum PortLocator {
     /// A device path (or a symlink to one).
     Path { path: PathBuf },
     /// A USB serial device with these ids (hex in the rig file).
-    Usb {
-        vid: u16,
-        pid: u16,
-        serial: Option<String>,
-    },
+    Usb { vid: u16, pid: u16, serial: Option<String> },
 }
 
 impl PortLocator {
@@ -47,13 +43,10 @@ impl PortLocator {
                 }
             }
             PortLocator::Usb { vid, pid, serial } => {
-                let ports = tokio_serial::available_ports()
-                    .map_err(|e| LinkError::Io(std::io::Error::other(e)))?;
+                let ports = tokio_serial::available_ports().map_err(|e| LinkError::Io(std::io::Error::other(e)))?;
                 for p in ports {
                     if let tokio_serial::SerialPortType::UsbPort(u) = &p.port_type {
-                        let serial_ok = serial
-                            .as_ref()
-                            .is_none_or(|s| u.serial_number.as_deref() == Some(s.as_str()));
+                        let serial_ok = serial.as_ref().is_none_or(|s| u.serial_number.as_deref() == Some(s.as_str()));
                         if u.vid == *vid && u.pid == *pid && serial_ok {
                             return Ok(PathBuf::from(p.port_name));
                         }
@@ -63,10 +56,7 @@ impl PortLocator {
                     std::io::ErrorKind::NotFound,
                     format!(
                         "no USB serial device {vid:04x}:{pid:04x}{} is connected (check the cable; `lsusb` lists devices)",
-                        serial
-                            .as_ref()
-                            .map(|s| format!(" with serial {s}"))
-                            .unwrap_or_default()
+                        serial.as_ref().map(|s| format!(" with serial {s}")).unwrap_or_default()
                     ),
                 )))
             }
@@ -79,10 +69,7 @@ impl PortLocator {
             PortLocator::Usb { vid, pid, serial } => {
                 format!(
                     "USB {vid:04x}:{pid:04x}{}",
-                    serial
-                        .as_ref()
-                        .map(|s| format!(" serial {s}"))
-                        .unwrap_or_default()
+                    serial.as_ref().map(|s| format!(" serial {s}")).unwrap_or_default()
                 )
             }
         }

@@ -90,9 +90,7 @@ pub struct RigSettings {
 impl Default for RigSettings {
     fn default() -> Self {
         Self {
-            reply_timeout: Duration::from_millis(
-                firmware_protocol::timing::REPLY_TIMEOUT_MS as u64,
-            ),
+            reply_timeout: Duration::from_millis(firmware_protocol::timing::REPLY_TIMEOUT_MS as u64),
             led_current_ma: 200,
             led_max_on_ms: 1000,
             reconnect_timeout: Duration::from_secs(15),
@@ -122,18 +120,12 @@ pub enum RigError {
     #[error("{op} failed: {cause}")]
     Link { op: &'static str, cause: LinkError },
     #[error("{op} still failing after {n} recoveries; last error: {cause}")]
-    GaveUp {
-        op: &'static str,
-        n: u32,
-        cause: LinkError,
-    },
+    GaveUp { op: &'static str, n: u32, cause: LinkError },
     #[error(
         "the rig's port {port} disappeared and did not come back within {secs} s (check the USB cable and the rig's power)"
     )]
     LinkLost { port: String, secs: u64 },
-    #[error(
-        "the rig is e-stopped; clear the cause, then run again (the e-stop is cleared by the next connection)"
-    )]
+    #[error("the rig is e-stopped; clear the cause, then run again (the e-stop is cleared by the next connection)")]
     EStopped,
 }
 
@@ -182,10 +174,7 @@ pub struct Rig<C: Connector> {
 
 impl<C: Connector> std::fmt::Debug for Rig<C> {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Rig")
-            .field("port", &self.connector.describe())
-            .field("epoch", &self.epoch)
-            .finish()
+        f.debug_struct("Rig").field("port", &self.connector.describe()).field("epoch", &self.epoch).finish()
     }
 }
 
@@ -194,13 +183,7 @@ impl<C: Connector> Rig<C> {
     /// any latched fault left from a previous session.
     pub async fn open(mut connector: C, settings: RigSettings) -> Result<Self, RigError> {
         let port = connector.describe();
-        let io = connector
-            .connect()
-            .await
-            .map_err(|cause| RigError::Connect {
-                port: port.clone(),
-                cause,
-            })?;
+        let io = connector.connect().await.map_err(|cause| RigError::Connect { port: port.clone(), cause })?;
         let mut client = McuClient::new(io);
         client.reply_timeout = settings.reply_timeout;
         let mut rig = Self {
@@ -216,27 +199,11 @@ impl<C: Connector> Rig<C> {
             closed_stats: LinkStats::default(),
         };
         let boot_wait = Duration::from_millis(BOOT_WAIT_MS as u64 / 10);
-        let c = rig.client.as_mut().ok_or(RigError::Connect {
-            port: port.clone(),
-            cause: LinkError::Closed,
-        })?;
-        c.drain_boot(boot_wait)
-            .await
-            .map_err(|cause| RigError::Connect {
-                port: port.clone(),
-                cause,
-            })?;
-        let info = c.hello().await.map_err(|cause| RigError::Connect {
-            port: port.clone(),
-            cause,
-        })?;
-        c.all_off().await.map_err(|cause| RigError::Connect {
-            port: port.clone(),
-            cause,
-        })?;
-        c.clear_fault()
-            .await
-            .map_err(|cause| RigError::Connect { port, cause })?;
+        let c = rig.client.as_mut().ok_or(RigError::Connect { port: port.clone(), cause: LinkError::Closed })?;
+        c.drain_boot(boot_wait).await.map_err(|cause| RigError::Connect { port: port.clone(), cause })?;
+        let info = c.hello().await.map_err(|cause| RigError::Connect { port: port.clone(), cause })?;
+        c.all_off().await.map_err(|cause| RigError::Connect { port: port.clone(), cause })?;
+        c.clear_fault().await.map_err(|cause| RigError::Connect { port, cause })?;
         rig.info = Some(info);
         tracing::info!(
             firmware = ?info.firmware, leds = info.n_leds, travel_min_um = info.travel_min_um,
@@ -283,39 +250,25 @@ impl<C: Connector> Rig<C> {
     }
 
     fn heartbeat_interval(&self) -> Duration {
-        let wd = self
-            .info
-            .map_or(firmware_protocol::timing::WATCHDOG_MS, |i| i.watchdog_ms);
+        let wd = self.info.map_or(firmware_protocol::timing::WATCHDOG_MS, |i| i.watchdog_ms);
         Duration::from_millis(wd as u64 / 4)
     }
 
     /// Homing from anywhere on the rail at the homing speed, plus slack.
     fn predicted_home(&self) -> Duration {
         let s = &self.settings;
-        let rail = self
-            .info
-            .map_or(250_000, |i| i.travel_max_um - i.travel_min_um) as f64
-            * 1.1;
-        Duration::from_secs_f64(rail / s.homing_speed_um_s.max(1.0) + s.settle_ms / 1000.0)
-            + s.move_done_slack
+        let rail = self.info.map_or(250_000, |i| i.travel_max_um - i.travel_min_um) as f64 * 1.1;
+        Duration::from_secs_f64(rail / s.homing_speed_um_s.max(1.0) + s.settle_ms / 1000.0) + s.move_done_slack
     }
 
     fn predicted_move(&self, from: Option<i32>, to: i32) -> Duration {
         let s = &self.settings;
         let dist = match from {
             Some(f) => (to - f).abs() as f64,
-            None => {
-                (self
-                    .info
-                    .map_or(240_000, |i| i.travel_max_um - i.travel_min_um)) as f64
-            }
+            None => (self.info.map_or(240_000, |i| i.travel_max_um - i.travel_min_um)) as f64,
         };
         let (v, a) = (s.speed_um_s.max(1.0), s.accel_um_s2.max(1.0));
-        let secs = if dist >= v * v / a {
-            dist / v + v / a
-        } else {
-            2.0 * (dist / a).sqrt()
-        };
+        let secs = if dist >= v * v / a { dist / v + v / a } else { 2.0 * (dist / a).sqrt() };
         Duration::from_secs_f64(secs + s.settle_ms / 1000.0) + s.move_done_slack
     }
 
@@ -338,17 +291,13 @@ impl<C: Connector> Rig<C> {
                 Ok(Out::Position(p))
             }
             Op::MoveTo(x) => {
-                client
-                    .start_motion(Command::MoveTo { position_um: x })
-                    .await?;
+                client.start_motion(Command::MoveTo { position_um: x }).await?;
                 let p = client.wait_motion(predicted, predicted * 4, hb).await?;
                 self.position_um = Some(p);
                 Ok(Out::Position(p))
             }
             Op::Led(k) => {
-                client
-                    .set_led(k, settings.led_current_ma, settings.led_max_on_ms)
-                    .await?;
+                client.set_led(k, settings.led_current_ma, settings.led_max_on_ms).await?;
                 Ok(Out::Done)
             }
             Op::AllOff => client.all_off().await.map(|_| Out::Done),
@@ -366,11 +315,7 @@ impl<C: Connector> Rig<C> {
             };
             n += 1;
             if n > self.settings.max_recoveries_per_op {
-                return Err(RigError::GaveUp {
-                    op: op.name(),
-                    n: n - 1,
-                    cause: err,
-                });
+                return Err(RigError::GaveUp { op: op.name(), n: n - 1, cause: err });
             }
             self.recover(op, err).await?;
             self.epoch += 1;
@@ -394,65 +339,39 @@ impl<C: Connector> Rig<C> {
                 self.reconnect().await?;
                 self.restore(op).await
             }
-            LinkError::Nak {
-                reason: NakReason::EStopLatched,
-                ..
-            } => Err(RigError::EStopped),
-            LinkError::Nak {
-                reason: NakReason::FaultLatched,
-                ..
-            } => {
+            LinkError::Nak { reason: NakReason::EStopLatched, .. } => Err(RigError::EStopped),
+            LinkError::Nak { reason: NakReason::FaultLatched, .. } => {
                 let st = self.status_raw(op).await?;
                 if st.faults.has(Faults::WATCHDOG) {
-                    tracing::warn!(
-                        "the rig's watchdog tripped (the host was silent too long); clearing and restoring"
-                    );
+                    tracing::warn!("the rig's watchdog tripped (the host was silent too long); clearing and restoring");
                     self.recoveries.push(Recovery::WatchdogCleared);
                     self.restore(op).await
                 } else {
                     Err(RigError::Link {
                         op: op.name(),
-                        cause: LinkError::Nak {
-                            command: "any",
-                            reason: NakReason::FaultLatched,
-                        },
+                        cause: LinkError::Nak { command: "any", reason: NakReason::FaultLatched },
                     })
                 }
             }
-            LinkError::Nak {
-                reason: NakReason::NotHomed,
-                ..
-            } if !matches!(op, Op::Home) => {
+            LinkError::Nak { reason: NakReason::NotHomed, .. } if !matches!(op, Op::Home) => {
                 tracing::warn!("the rig reports it is not homed; homing");
                 self.was_homed = true;
                 self.restore(op).await
             }
-            cause => Err(RigError::Link {
-                op: op.name(),
-                cause,
-            }),
+            cause => Err(RigError::Link { op: op.name(), cause }),
         }
     }
 
     async fn status_raw(&mut self, op: Op) -> Result<StatusInfo, RigError> {
-        let c = self.client.as_mut().ok_or(RigError::Link {
-            op: op.name(),
-            cause: LinkError::Closed,
-        })?;
-        c.status().await.map_err(|cause| RigError::Link {
-            op: op.name(),
-            cause,
-        })
+        let c = self.client.as_mut().ok_or(RigError::Link { op: op.name(), cause: LinkError::Closed })?;
+        c.status().await.map_err(|cause| RigError::Link { op: op.name(), cause })
     }
 
     /// Hello, clear faults, and (if the rig had been homed) home and return
     /// to the last target. Errors here are returned as link errors for the
     /// caller's recovery loop to handle.
     async fn restore(&mut self, op: Op) -> Result<(), RigError> {
-        let wrap = |cause| RigError::Link {
-            op: op.name(),
-            cause,
-        };
+        let wrap = |cause| RigError::Link { op: op.name(), cause };
         let c = self.client.as_mut().ok_or(wrap(LinkError::Closed))?;
         let result: Result<(), LinkError> = async {
             let info = c.hello().await?;
@@ -479,12 +398,7 @@ impl<C: Connector> Rig<C> {
             let c = self.client.as_mut().ok_or(wrap(LinkError::Closed))?;
             let r: Result<(), LinkError> = async {
                 c.start_motion(Command::Home).await?;
-                c.wait_motion(
-                    home_expected,
-                    Duration::from_millis(HOME_TIMEOUT_MS as u64),
-                    hb,
-                )
-                .await?;
+                c.wait_motion(home_expected, Duration::from_millis(HOME_TIMEOUT_MS as u64), hb).await?;
                 if let (Some(t), Some(p)) = (back, predicted) {
                     c.start_motion(Command::MoveTo { position_um: t }).await?;
                     c.wait_motion(p, p * 4, hb).await?;
@@ -532,10 +446,7 @@ impl<C: Connector> Rig<C> {
                 Err(e) => {
                     if start.elapsed() >= self.settings.reconnect_timeout {
                         tracing::error!(error = %e, "giving up reconnecting");
-                        return Err(RigError::LinkLost {
-                            port,
-                            secs: self.settings.reconnect_timeout.as_secs(),
-                        });
+                        return Err(RigError::LinkLost { port, secs: self.settings.reconnect_timeout.as_secs() });
                     }
                     tokio::time::sleep(Duration::from_millis(100)).await;
                 }
@@ -575,20 +486,14 @@ impl<C: Connector> Rig<C> {
     pub async fn status(&mut self) -> Result<StatusInfo, RigError> {
         match self.run(Op::Status).await? {
             Out::Status(s) => Ok(s),
-            _ => Err(RigError::Link {
-                op: "reading rig status",
-                cause: LinkError::Closed,
-            }),
+            _ => Err(RigError::Link { op: "reading rig status", cause: LinkError::Closed }),
         }
     }
 
     /// Send a heartbeat if the link has been quiet for a quarter of the
     /// watchdog (call while waiting on something else).
     pub async fn keepalive(&mut self) -> Result<(), RigError> {
-        let quiet = self
-            .client
-            .as_ref()
-            .map_or(Duration::ZERO, |c| c.quiet_for());
+        let quiet = self.client.as_ref().map_or(Duration::ZERO, |c| c.quiet_for());
         if quiet >= self.heartbeat_interval() {
             self.run(Op::Heartbeat).await?;
         }
@@ -597,14 +502,8 @@ impl<C: Connector> Rig<C> {
 
     /// E-stop now: motion stops and LEDs go off; the rig stays latched.
     pub async fn estop(&mut self) -> Result<(), RigError> {
-        let c = self.client.as_mut().ok_or(RigError::Link {
-            op: "e-stop",
-            cause: LinkError::Closed,
-        })?;
-        c.estop().await.map_err(|cause| RigError::Link {
-            op: "e-stop",
-            cause,
-        })
+        let c = self.client.as_mut().ok_or(RigError::Link { op: "e-stop", cause: LinkError::Closed })?;
+        c.estop().await.map_err(|cause| RigError::Link { op: "e-stop", cause })
     }
 
     /// Leave the rig safe: LEDs off. Errors are logged, not returned: this

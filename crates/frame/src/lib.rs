@@ -1,0 +1,268 @@
+//! Camera frames as the rest of the system sees them: raw sensor values
+//! (`u16`, right-aligned to `bit_depth`) in a mono, Bayer or RGB layout,
+//! with the metadata that ties a frame to an LED: monotonic exposure
+//! timestamps, sequence number, exposure, gain and error flags.
+//! Demosaicing to linear RGB happens here, once, for every consumer.
+
+use serde::{Deserialize, Serialize};
+
+/// Nanoseconds of `CLOCK_MONOTONIC` (the time base of V4L2 buffers and of
+/// every event the host records; conversions live in `rig::clock`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+#[serde(transparent)]
+pub struct MonoNs(pub u64);
+
+/// The 2x2 colour-filter tile of a Bayer sensor, named by its first row.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum BayerPattern {
+    Rggb,
+    Bggr,
+    Grbg,
+    Gbrg,
+}
+
+impl BayerPattern {
+    /// Colour channel (0 R, 1 G, 2 B) of pixel `(x, y)`.
+    #[inline]
+    pub fn channel(self, x: u32, y: u32) -> usize {
+        let (ox, oy) = ((x & 1) as usize, (y & 1) as usize);
+        let tile: [[usize; 2]; 2] = match self {
+            BayerPattern::Rggb => [[0, 1], [1, 2]],
+            BayerPattern::Bggr => [[2, 1], [1, 0]],
+            BayerPattern::Grbg => [[1, 0], [2, 1]],
+            BayerPattern::Gbrg => [[1, 2], [0, 1]],
+        };
+        tile[oy][ox]
+    }
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case", tag = "kind")]
+pub enum Layout {
+    Mono,
+    Bayer {
+        pattern: BayerPattern,
+    },
+    /// Interleaved RGB.
+    Rgb,
+}
+
+impl Layout {
+    pub fn samples_per_pixel(self) -> usize {
+        match self {
+            Layout::Rgb => 3,
+            _ => 1,
+        }
+    }
+}
+
+/// Frame flags.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct FrameFlags {
+    /// The driver marked the buffer as damaged (V4L2_BUF_FLAG_ERROR).
+    pub error: bool,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct FrameMeta {
+    /// Driver sequence number (gaps mean dropped frames).
+    pub sequence: u64,
+    /// Start and end of the exposure.
+    pub exposure_start: MonoNs,
+    pub exposure_end: MonoNs,
+    pub exposure_us: u32,
+    pub gain: f32,
+    pub flags: FrameFlags,
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct Frame {
+    pub width: u32,
+    pub height: u32,
+    pub layout: Layout,
+    /// Significant bits per sample (values are right-aligned).
+    pub bit_depth: u8,
+    pub data: Vec<u16>,
+    pub meta: FrameMeta,
+}
+
+impl Frame {
+    /// Largest value the sensor can report; a sample at it is clipped.
+    pub fn max_value(&self) -> u16 {
+        ((1u32 << self.bit_depth.min(16)) - 1) as u16
+    }
+
+    /// Linear RGB planes (bilinear demosaicing for Bayer data; replicated
+    /// for mono) and a per-pixel clipped flag (set if the pixel or any
+    /// sensor pixel that contributed to it reached [`Frame::max_value`]).
+    pub fn to_rgb(&self) -> RgbImage {
+        let (w, h) = (self.width as usize, self.height as usize);
+        let max = self.max_value();
+        let mut img = RgbImage {
+            width: self.width,
+            height: self.height,
+            r: vec![0.0; w * h],
+            g: vec![0.0; w * h],
+            b: vec![0.0; w * h],
+            clipped: vec![false; w * h],
+        };
+        match self.layout {
+            Layout::Mono => {
+                for i in 0..w * h {
+                    let v = self.data[i] as f32;
+                    img.r[i] = v;
+                    img.g[i] = v;
+                    img.b[i] = v;
+                    img.clipped[i] = self.data[i] >= max;
+                }
+            }
+            Layout::Rgb => {
+                for i in 0..w * h {
+                    img.r[i] = self.data[3 * i] as f32;
+                    img.g[i] = self.data[3 * i + 1] as f32;
+                    img.b[i] = self.data[3 * i + 2] as f32;
+                    img.clipped[i] = self.data[3 * i..3 * i + 3].iter().any(|&v| v >= max);
+                }
+            }
+            Layout::Bayer { pattern } => demosaic_bilinear(self, pattern, &mut img),
+        }
+        img
+    }
+}
+
+/// Bilinear demosaicing: each missing channel is the mean of the nearest
+/// sensor pixels of that colour in the 3x3 neighbourhood. Simple and
+/// linear (it never invents contrast), which is what radiometry needs; it
+/// softens edges by about a pixel, which the fitter's bilinear sampling
+/// does anyway.
+fn demosaic_bilinear(f: &Frame, pattern: BayerPattern, img: &mut RgbImage) {
+    let (w, h) = (f.width as i64, f.height as i64);
+    let max = f.max_value();
+    for y in 0..h {
+        for x in 0..w {
+            let mut sum = [0.0f32; 3];
+            let mut n = [0u32; 3];
+            let mut clipped = false;
+            let own = pattern.channel(x as u32, y as u32);
+            for dy in -1..=1 {
+                for dx in -1..=1 {
+                    let (xx, yy) = (x + dx, y + dy);
+                    if xx < 0 || yy < 0 || xx >= w || yy >= h {
+                        continue;
+                    }
+                    let c = pattern.channel(xx as u32, yy as u32);
+                    // The pixel's own channel comes from itself only.
+                    if c == own && (dx != 0 || dy != 0) {
+                        continue;
+                    }
+                    let v = f.data[(yy * w + xx) as usize];
+                    sum[c] += v as f32;
+                    n[c] += 1;
+                    clipped |= v >= max;
+                }
+            }
+            let i = (y * w + x) as usize;
+            let get = |c: usize| if n[c] > 0 { sum[c] / n[c] as f32 } else { 0.0 };
+            img.r[i] = get(0);
+            img.g[i] = get(1);
+            img.b[i] = get(2);
+            img.clipped[i] = clipped;
+        }
+    }
+}
+
+/// Linear RGB planes in sensor units (DN), with a clipped flag per pixel.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RgbImage {
+    pub width: u32,
+    pub height: u32,
+    pub r: Vec<f32>,
+    pub g: Vec<f32>,
+    pub b: Vec<f32>,
+    pub clipped: Vec<bool>,
+}
+
+impl RgbImage {
+    /// Bilinear sample at continuous pixel coordinates (pixel centres at
+    /// +0.5). `None` outside the image. The clipped flag is set if any of
+    /// the four pixels involved is clipped.
+    pub fn sample(&self, x: f32, y: f32) -> Option<([f32; 3], bool)> {
+        let (fx, fy) = (x - 0.5, y - 0.5);
+        if !(fx >= 0.0 && fy >= 0.0) {
+            return None;
+        }
+        let (x0, y0) = (fx as usize, fy as usize);
+        let (w, h) = (self.width as usize, self.height as usize);
+        if x0 + 1 >= w || y0 + 1 >= h {
+            return None;
+        }
+        let (tx, ty) = (fx - x0 as f32, fy - y0 as f32);
+        let idx = [y0 * w + x0, y0 * w + x0 + 1, (y0 + 1) * w + x0, (y0 + 1) * w + x0 + 1];
+        let wts = [(1.0 - tx) * (1.0 - ty), tx * (1.0 - ty), (1.0 - tx) * ty, tx * ty];
+        let mut out = [0.0f32; 3];
+        let mut clipped = false;
+        for k in 0..4 {
+            out[0] += wts[k] * self.r[idx[k]];
+            out[1] += wts[k] * self.g[idx[k]];
+            out[2] += wts[k] * self.b[idx[k]];
+            clipped |= self.clipped[idx[k]];
+        }
+        Some((out, clipped))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn meta() -> FrameMeta {
+        FrameMeta {
+            sequence: 0,
+            exposure_start: MonoNs(0),
+            exposure_end: MonoNs(1),
+            exposure_us: 1,
+            gain: 1.0,
+            flags: FrameFlags::default(),
+        }
+    }
+
+    #[test]
+    fn demosaic_of_a_flat_colour_is_exact() {
+        let (w, h) = (8u32, 6u32);
+        let colour = [300u16, 200, 100];
+        let data = (0..h).flat_map(|y| (0..w).map(move |x| colour[BayerPattern::Rggb.channel(x, y)])).collect();
+        let f = Frame {
+            width: w,
+            height: h,
+            layout: Layout::Bayer { pattern: BayerPattern::Rggb },
+            bit_depth: 12,
+            data,
+            meta: meta(),
+        };
+        let img = f.to_rgb();
+        for i in 0..(w * h) as usize {
+            assert_eq!((img.r[i], img.g[i], img.b[i]), (300.0, 200.0, 100.0));
+            assert!(!img.clipped[i]);
+        }
+        let (s, c) = img.sample(3.2, 2.7).unwrap();
+        assert!((s[0] - 300.0).abs() < 1e-3 && !c);
+    }
+
+    #[test]
+    fn clipping_propagates_to_neighbours() {
+        let mut data = vec![100u16; 16];
+        data[5] = 4095;
+        let f = Frame {
+            width: 4,
+            height: 4,
+            layout: Layout::Bayer { pattern: BayerPattern::Rggb },
+            bit_depth: 12,
+            data,
+            meta: meta(),
+        };
+        let img = f.to_rgb();
+        assert!(img.clipped[5] && img.clipped[0] && img.clipped[10]);
+        assert!(!img.clipped[15]);
+    }
+}

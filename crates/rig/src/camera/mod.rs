@@ -1,0 +1,78 @@
+//! The camera: one trait, a V4L2 backend for real devices and (in `sim`) a
+//! simulated one.
+//!
+//! A frame belongs to an LED only if its exposure started after the LED was
+//! known to be lit, which is decided by timestamps, never by order:
+//! [`FrameFilter`] is that rule, shared by every backend.
+
+mod filter;
+
+use std::collections::BTreeMap;
+use std::future::Future;
+use std::time::Duration;
+
+pub use filter::{FrameFilter, Verdict};
+use frame::{Frame, MonoNs};
+use serde::{Deserialize, Serialize};
+use thiserror::Error;
+
+/// What the capture asks of a camera. Every automatic mode (exposure, gain,
+/// white balance) is always switched off; they are not settings.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CameraSettings {
+    pub width: u32,
+    pub height: u32,
+    pub exposure_us: u32,
+    pub gain: f32,
+    pub fps: f32,
+    /// Frames discarded after any control change (drivers apply controls
+    /// with a delay of a frame or two).
+    pub settle_frames: u32,
+}
+
+/// What the device accepted, read back after setting it: recorded in the
+/// capture's metadata, so a capture says what the camera really did.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct AppliedSettings {
+    pub device: String,
+    pub driver: String,
+    pub format: String,
+    pub width: u32,
+    pub height: u32,
+    pub bit_depth: u8,
+    pub exposure_us: u32,
+    pub gain: f32,
+    /// Every control set, with the value read back.
+    pub controls: BTreeMap<String, i64>,
+    /// Warnings for the operator (e.g. a non-radiometric format).
+    pub warnings: Vec<String>,
+}
+
+#[derive(Debug, Error)]
+pub enum CameraError {
+    #[error("no usable frame within {waited_ms} ms (is the camera streaming? check its cable and that no other program uses it)")]
+    Timeout { waited_ms: u64 },
+    #[error("the camera disappeared ({0}); check its USB cable")]
+    Gone(String),
+    #[error("the camera cannot deliver what the measurement needs: {0}")]
+    Unsupported(String),
+    #[error("camera error: {0}")]
+    Io(#[from] std::io::Error),
+}
+
+/// A camera that streams frames with monotonic timestamps.
+pub trait Camera: Send {
+    fn describe(&self) -> String;
+
+    /// Set format, size, exposure, gain and every automatic mode off; read
+    /// everything back.
+    fn configure(&mut self, settings: &CameraSettings) -> impl Future<Output = Result<AppliedSettings, CameraError>> + Send;
+
+    /// Change exposure and gain between frames (HDR brackets).
+    fn set_exposure(&mut self, exposure_us: u32, gain: f32) -> impl Future<Output = Result<(), CameraError>> + Send;
+
+    /// The first good frame whose exposure started at or after `after`
+    /// (error-flagged frames, frames from before `after`, and frames within
+    /// the settle window of a control change are discarded).
+    fn frame_after(&mut self, after: MonoNs, timeout: Duration) -> impl Future<Output = Result<Frame, CameraError>> + Send;
+}

@@ -1,0 +1,73 @@
+//! Radiometric calibration: what turns a pixel value into reflectance.
+//!
+//! For a point `x` lit by LED `q` at `P_q`, the design's radiometry is
+//! `rho = I_q(x) / ((n . i_q) L_q |P_q - x|^2)` (seed talk; DESIGN section 3).
+//! A real rig needs three more factors, all measured from a white diffuse
+//! reference scan of known albedo:
+//!
+//! `signal = (DN - black) / (exposure_s * gain)`
+//! `rho = signal * r^2 / (S_q * F(x) * P(cos_emit) * cos_i)`
+//!
+//! - `S_q`: each LED's intensity (LEDs differ by several per cent),
+//! - `P`: the LEDs' angular emission profile, `cos^m` of the angle from the
+//!   LED axis,
+//! - `F(x)`: the flat field of each sample point (lens vignetting and
+//!   pixel response),
+//!
+//! and a dark scan gives the black level. Taking logarithms,
+//! `log M = log S_q + log F(x) + m log cos_emit` is linear in the unknowns;
+//! [`crate::calibration`] consumers solve it by alternating least squares
+//! (see the `fit` crate's `calibrate` module).
+
+use serde::{Deserialize, Serialize};
+
+/// A radiometric calibration of one rig.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Calibration {
+    /// Identifier (creation time, UTC, `YYYYMMDDTHHMMSSZ`), recorded in every
+    /// capture that uses it.
+    pub id: String,
+    /// Black level in DN per colour channel (from the dark scan).
+    pub black_level: [f32; 3],
+    /// Read noise in DN per channel (standard deviation of the dark scan).
+    pub read_noise_dn: [f32; 3],
+    /// Per-LED intensity `S_q` (signal units at unit reflectance, unit
+    /// profile and unit distance, in mm^2), indexed by LED number.
+    pub led_scale: Vec<f32>,
+    /// Emission profile exponent `m`.
+    pub profile_exponent: f32,
+    /// Flat field per point of the grid it was measured on (mean 1), row-major;
+    /// empty means uniform.
+    pub flat_field: Vec<f32>,
+    pub flat_field_grid: Option<crate::geometry::PointGrid>,
+    /// Albedo of the white reference used.
+    pub reference_albedo: f32,
+    /// RMS relative residual of the white fit (how well the model explains it).
+    pub residual_rms: f32,
+}
+
+impl Calibration {
+    /// A calibration that trusts the nominal rig: equal LEDs of unit
+    /// intensity, nominal profile, no flat-field correction.
+    pub fn nominal(n_leds: u8, profile_exponent: f32, black_level: f32) -> Self {
+        Self {
+            id: "nominal".into(),
+            black_level: [black_level; 3],
+            read_noise_dn: [0.0; 3],
+            led_scale: vec![1.0; n_leds as usize],
+            profile_exponent,
+            flat_field: Vec::new(),
+            flat_field_grid: None,
+            reference_albedo: 1.0,
+            residual_rms: 0.0,
+        }
+    }
+
+    /// Flat-field factor of point `i` of `grid`, 1 if none was measured on it.
+    pub fn flat(&self, grid: &crate::geometry::PointGrid, i: usize) -> f32 {
+        match self.flat_field_grid {
+            Some(g) if g == *grid && i < self.flat_field.len() => self.flat_field[i],
+            _ => 1.0,
+        }
+    }
+}

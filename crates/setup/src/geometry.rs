@@ -1,0 +1,215 @@
+//! Rig geometry in millimetres, in the sample frame: the sample plane is
+//! `z = 0`, its centre the origin, `+x` the gantry's direction of travel,
+//! `+z` up toward the light bar.
+
+use glam::{Vec2, Vec3};
+use serde::{Deserialize, Serialize};
+
+use crate::camera::CameraModel;
+
+/// The flat sample, centred at the origin.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SampleArea {
+    pub width_mm: f32,
+    pub height_mm: f32,
+}
+
+impl SampleArea {
+    pub fn contains(&self, p: Vec2) -> bool {
+        p.x.abs() <= 0.5 * self.width_mm && p.y.abs() <= 0.5 * self.height_mm
+    }
+}
+
+/// The bar of LEDs carried by the gantry, parallel to `y`.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct LedBar {
+    pub n_leds: u8,
+    pub pitch_mm: f32,
+    /// `y` of LED 0.
+    pub first_led_y_mm: f32,
+    /// Height of the LEDs (the bar's underside) above the sample.
+    pub height_mm: f32,
+    /// Extent of the bar along `x` (it blocks the camera's view).
+    pub width_mm: f32,
+    pub thickness_mm: f32,
+}
+
+impl LedBar {
+    /// Position of LED `k` with the bar's centre line at `bar_x_mm`.
+    pub fn led_position(&self, bar_x_mm: f32, k: u8) -> Vec3 {
+        Vec3::new(bar_x_mm, self.first_led_y_mm + k as f32 * self.pitch_mm, self.height_mm)
+    }
+
+    /// Does the bar, at `bar_x_mm`, block the straight path from `p` (on
+    /// the sample) to `eye`? `margin_mm` grows the bar on every side (the
+    /// fitter masks conservatively; the simulator renders with 0).
+    pub fn occludes(&self, bar_x_mm: f32, p: Vec3, eye: Vec3, margin_mm: f32) -> bool {
+        let y0 = self.first_led_y_mm - 0.5 * self.pitch_mm;
+        let y1 = self.first_led_y_mm + (self.n_leds as f32 - 0.5) * self.pitch_mm;
+        let lo = Vec3::new(bar_x_mm - 0.5 * self.width_mm, y0, self.height_mm) - Vec3::splat(margin_mm);
+        let hi =
+            Vec3::new(bar_x_mm + 0.5 * self.width_mm, y1, self.height_mm + self.thickness_mm) + Vec3::splat(margin_mm);
+        segment_hits_box(p, eye, lo, hi)
+    }
+}
+
+/// Slab test of the segment `a -> b` against an axis-aligned box.
+fn segment_hits_box(a: Vec3, b: Vec3, lo: Vec3, hi: Vec3) -> bool {
+    let d = b - a;
+    let (mut t0, mut t1) = (0.0f32, 1.0f32);
+    for k in 0..3 {
+        if d[k].abs() < 1e-12 {
+            if a[k] < lo[k] || a[k] > hi[k] {
+                return false;
+            }
+        } else {
+            let (mut ta, mut tb) = ((lo[k] - a[k]) / d[k], (hi[k] - a[k]) / d[k]);
+            if ta > tb {
+                std::mem::swap(&mut ta, &mut tb);
+            }
+            t0 = t0.max(ta);
+            t1 = t1.min(tb);
+            if t0 > t1 {
+                return false;
+            }
+        }
+    }
+    true
+}
+
+/// Mechanical limits of the gantry (positions of the bar's centre line).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Gantry {
+    pub travel_min_mm: f32,
+    pub travel_max_mm: f32,
+    pub speed_mm_s: f32,
+    pub accel_mm_s2: f32,
+    pub settle_ms: f32,
+    pub homing_speed_mm_s: f32,
+}
+
+/// LED emission: intensity falls off with the angle from the LED's axis
+/// (straight down) as `cos^m`; real LEDs are near `m = 1` (Lambertian).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct LedEmission {
+    pub profile_exponent: f32,
+    /// Current the plan drives the LEDs at.
+    pub current_ma: u16,
+}
+
+impl LedEmission {
+    /// Relative intensity toward a point at `cos_emit` from the LED axis.
+    pub fn profile(&self, cos_emit: f32) -> f32 {
+        cos_emit.max(0.0).powf(self.profile_exponent)
+    }
+}
+
+/// Everything about the rig's shape.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RigGeometry {
+    pub sample: SampleArea,
+    pub bar: LedBar,
+    pub gantry: Gantry,
+    pub emission: LedEmission,
+    pub camera: CameraModel,
+}
+
+impl Default for RigGeometry {
+    /// The design's default rig: a 10 x 10 cm sample, 40 LEDs at 5 mm pitch
+    /// 4 cm above it, travel -12..+12 cm, and a camera 45 degrees from the
+    /// normal on the `-x` side, 45 cm away.
+    fn default() -> Self {
+        Self {
+            sample: SampleArea { width_mm: 100.0, height_mm: 100.0 },
+            bar: LedBar {
+                n_leds: 40,
+                pitch_mm: 5.0,
+                first_led_y_mm: -97.5,
+                height_mm: 40.0,
+                width_mm: 10.0,
+                thickness_mm: 12.0,
+            },
+            gantry: Gantry {
+                travel_min_mm: -120.0,
+                travel_max_mm: 120.0,
+                speed_mm_s: 100.0,
+                accel_mm_s2: 1000.0,
+                settle_ms: 30.0,
+                homing_speed_mm_s: 50.0,
+            },
+            emission: LedEmission { profile_exponent: 1.0, current_ma: 200 },
+            camera: CameraModel::oblique(45.0, 450.0, 15.0, 256, 256),
+        }
+    }
+}
+
+/// The rectified grid of sample points the fitter solves for and the
+/// material maps are stored on. Row 0 is the far edge (`y = +h/2`), column 0
+/// the `x = -w/2` edge, so a map viewed as an image is a top view with `x`
+/// to the right and `y` up.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct PointGrid {
+    pub cols: u32,
+    pub rows: u32,
+}
+
+impl PointGrid {
+    pub fn len(&self) -> usize {
+        (self.cols * self.rows) as usize
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Position (mm) of point `(col, row)` on a sample.
+    pub fn position(&self, sample: &SampleArea, col: u32, row: u32) -> Vec2 {
+        Vec2::new(
+            -0.5 * sample.width_mm + (col as f32 + 0.5) * sample.width_mm / self.cols as f32,
+            0.5 * sample.height_mm - (row as f32 + 0.5) * sample.height_mm / self.rows as f32,
+        )
+    }
+
+    /// Position of point index `i` (row-major).
+    pub fn position_of(&self, sample: &SampleArea, i: usize) -> Vec2 {
+        self.position(sample, (i % self.cols as usize) as u32, (i / self.cols as usize) as u32)
+    }
+
+    /// Continuous grid coordinates `(col, row)` of a sample position
+    /// (cell centres at integer + 0.5).
+    pub fn coords(&self, sample: &SampleArea, p: Vec2) -> Vec2 {
+        Vec2::new(
+            (p.x + 0.5 * sample.width_mm) / sample.width_mm * self.cols as f32,
+            (0.5 * sample.height_mm - p.y) / sample.height_mm * self.rows as f32,
+        )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn bar_blocks_the_camera_where_it_should() {
+        let g = RigGeometry::default();
+        let eye = g.camera.position_mm;
+        // The camera looks down at 45 degrees from -x: a ray from the
+        // sample point x = 0 crosses z = 40 mm near x = -40 mm.
+        let p = Vec3::ZERO;
+        assert!(g.bar.occludes(-40.0, p, eye, 0.0));
+        assert!(!g.bar.occludes(0.0, p, eye, 0.0));
+        assert!(!g.bar.occludes(-80.0, p, eye, 0.0));
+        // Off the end of the bar in y nothing is blocked.
+        assert!(!g.bar.occludes(-40.0 + 0.0, Vec3::new(0.0, 150.0, 0.0), eye + Vec3::new(0.0, 150.0, 0.0), 0.0));
+    }
+
+    #[test]
+    fn point_grid_round_trips() {
+        let s = SampleArea { width_mm: 100.0, height_mm: 80.0 };
+        let g = PointGrid { cols: 10, rows: 8 };
+        let p = g.position(&s, 3, 5);
+        let c = g.coords(&s, p);
+        assert!((c - Vec2::new(3.5, 5.5)).length() < 1e-4);
+        assert!(g.position(&s, 0, 0).y > 0.0);
+    }
+}

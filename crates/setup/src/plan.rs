@@ -1,0 +1,145 @@
+//! The capture plan: which gantry positions, which LEDs, which exposures,
+//! and how many dark frames. Shots are ordered step by step, exposure by
+//! exposure within a step (an exposure change costs dropped frames), LED by
+//! LED within an exposure.
+
+use serde::{Deserialize, Serialize};
+use thiserror::Error;
+
+use crate::geometry::RigGeometry;
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CapturePlan {
+    /// Number of gantry positions.
+    pub steps: u32,
+    /// First and last bar position (inclusive), millimetres.
+    pub first_mm: f32,
+    pub last_mm: f32,
+    /// LEDs fired at each position.
+    pub leds: Vec<u8>,
+    /// Exposure times of the HDR bracket, longest first (one entry = no HDR).
+    pub exposures_us: Vec<u32>,
+    /// Analog gain.
+    pub gain: f32,
+    /// Dark frames (all LEDs off) taken per exposure before the shots.
+    pub dark_frames: u32,
+}
+
+#[derive(Debug, Error, PartialEq)]
+pub enum PlanError {
+    #[error("the plan needs at least one step, one LED and one exposure")]
+    Empty,
+    #[error("LED {led} does not exist: the bar has {n} LEDs (0..{n})")]
+    NoSuchLed { led: u8, n: u8 },
+    #[error("bar position {mm} mm is outside the gantry's travel {min}..{max} mm")]
+    OutOfTravel { mm: f32, min: f32, max: f32 },
+    #[error("exposure {us} us is not usable (must be 10..=1000000 us)")]
+    BadExposure { us: u32 },
+}
+
+/// One frame of the plan.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct PlannedShot {
+    /// Dense index over all shots.
+    pub index: u32,
+    pub step: u32,
+    pub led: u8,
+    /// Index into `exposures_us`.
+    pub exposure: u8,
+    pub position_um: i32,
+}
+
+impl CapturePlan {
+    /// The design's full plan: 64 steps over the whole travel, all 40 LEDs,
+    /// one exposure.
+    pub fn full(geometry: &RigGeometry) -> Self {
+        Self {
+            steps: 64,
+            first_mm: geometry.gantry.travel_min_mm,
+            last_mm: geometry.gantry.travel_max_mm,
+            leds: (0..geometry.bar.n_leds).collect(),
+            exposures_us: vec![20_000],
+            gain: 1.0,
+            dark_frames: 8,
+        }
+    }
+
+    pub fn validate(&self, g: &RigGeometry) -> Result<(), PlanError> {
+        if self.steps == 0 || self.leds.is_empty() || self.exposures_us.is_empty() {
+            return Err(PlanError::Empty);
+        }
+        if let Some(&led) = self.leds.iter().find(|&&l| l >= g.bar.n_leds) {
+            return Err(PlanError::NoSuchLed { led, n: g.bar.n_leds });
+        }
+        for mm in [self.first_mm, self.last_mm] {
+            if mm < g.gantry.travel_min_mm || mm > g.gantry.travel_max_mm || !mm.is_finite() {
+                return Err(PlanError::OutOfTravel { mm, min: g.gantry.travel_min_mm, max: g.gantry.travel_max_mm });
+            }
+        }
+        if let Some(&us) = self.exposures_us.iter().find(|&&e| !(10..=1_000_000).contains(&e)) {
+            return Err(PlanError::BadExposure { us });
+        }
+        Ok(())
+    }
+
+    /// Bar position of step `s`, millimetres.
+    pub fn step_mm(&self, s: u32) -> f32 {
+        if self.steps <= 1 {
+            return 0.5 * (self.first_mm + self.last_mm);
+        }
+        self.first_mm + (self.last_mm - self.first_mm) * s as f32 / (self.steps - 1) as f32
+    }
+
+    pub fn step_um(&self, s: u32) -> i32 {
+        (self.step_mm(s) * 1000.0).round() as i32
+    }
+
+    /// Number of light positions (steps x LEDs), the fitter's "lights".
+    pub fn n_lights(&self) -> usize {
+        self.steps as usize * self.leds.len()
+    }
+
+    /// Light index of a (step, LED) pair.
+    pub fn light_index(&self, step: u32, led: u8) -> Option<usize> {
+        let k = self.leds.iter().position(|&l| l == led)?;
+        Some(step as usize * self.leds.len() + k)
+    }
+
+    pub fn shots(&self) -> Vec<PlannedShot> {
+        let mut v = Vec::with_capacity(self.n_lights() * self.exposures_us.len());
+        for s in 0..self.steps {
+            for e in 0..self.exposures_us.len() {
+                for &led in &self.leds {
+                    v.push(PlannedShot {
+                        index: v.len() as u32,
+                        step: s,
+                        led,
+                        exposure: e as u8,
+                        position_um: self.step_um(s),
+                    });
+                }
+            }
+        }
+        v
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn shots_cover_every_light_and_exposure_once() {
+        let g = RigGeometry::default();
+        let mut p = CapturePlan::full(&g);
+        p.exposures_us = vec![20_000, 2_500];
+        p.validate(&g).unwrap();
+        let shots = p.shots();
+        assert_eq!(shots.len(), 64 * 40 * 2);
+        assert_eq!(shots[0].position_um, -120_000);
+        assert_eq!(shots.last().unwrap().position_um, 120_000);
+        assert_eq!(p.light_index(63, 39), Some(64 * 40 - 1));
+        p.leds.push(40);
+        assert!(matches!(p.validate(&g), Err(PlanError::NoSuchLed { .. })));
+    }
+}

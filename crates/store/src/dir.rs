@@ -1,0 +1,341 @@
+//! Creating, writing, reading and resuming a capture directory.
+
+use std::collections::HashSet;
+use std::fs::{self, File, OpenOptions};
+use std::io::{self, BufRead, BufReader, Write};
+use std::path::{Path, PathBuf};
+
+use frame::{Frame, MonoNs};
+use rayon::prelude::*;
+use thiserror::Error;
+
+use crate::format::{CAPTURE_FORMAT_VERSION, CaptureInfo, CaptureStatus, FrameKind, ManifestEntry};
+
+
+#[derive(Debug, Error)]
+pub enum StoreError {
+    #[error("{dir} already holds a capture of '{sample}' made {created}; choose another --out, or continue it with --resume {dir}")]
+    AnotherCapture { dir: String, sample: String, created: String },
+    #[error("{0} exists and is not empty, and is not a capture directory; choose an empty or new directory")]
+    NotEmpty(String),
+    #[error("{0} is not a capture directory (no capture.json)")]
+    NotACapture(String),
+    #[error("{path} is damaged or not a capture description: {reason}")]
+    BadCaptureJson { path: String, reason: String },
+    #[error("{path} was written by format version {found}; this program reads version {CAPTURE_FORMAT_VERSION}")]
+    Version { path: String, found: u32 },
+    #[error("the disk holding {dir} is full; free some space, then continue with --resume {dir} (nothing stored so far is lost)")]
+    DiskFull { dir: String },
+    #[error("{what} {path}: {source}")]
+    Io { what: &'static str, path: String, source: io::Error },
+    #[error("frame {path} is damaged: {reason}")]
+    BadFrame { path: String, reason: String },
+}
+
+fn io_err(what: &'static str, path: &Path, source: io::Error, dir: &Path) -> StoreError {
+    if source.raw_os_error() == Some(28) {
+        // ENOSPC
+        return StoreError::DiskFull { dir: dir.display().to_string() };
+    }
+    StoreError::Io { what, path: path.display().to_string(), source }
+}
+
+/// Write `bytes` to `path` atomically: a temporary file in the same
+/// directory, then a rename over the target.
+pub(crate) fn write_atomic(path: &Path, bytes: &[u8], dir: &Path) -> Result<(), StoreError> {
+    let tmp = path.with_file_name(format!(
+        ".{}.tmp",
+        path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default()
+    ));
+    let r = (|| -> io::Result<()> {
+        let mut f = File::create(&tmp)?;
+        f.write_all(bytes)?;
+        f.flush()?;
+        drop(f);
+        fs::rename(&tmp, path)
+    })();
+    if let Err(e) = r {
+        let _ = fs::remove_file(&tmp);
+        return Err(io_err("writing", path, e, dir));
+    }
+    Ok(())
+}
+
+/// What a resume found.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ResumeState {
+    /// Shots (by plan index) stored and verified.
+    pub done_shots: HashSet<u32>,
+    /// Dark frames stored and verified.
+    pub dark_frames: Vec<FrameKind>,
+    /// Entries whose frame was missing or did not match its checksum (dropped).
+    pub damaged: Vec<String>,
+    /// Whether the manifest's last line was torn (ignored).
+    pub torn_tail: bool,
+}
+
+/// An open capture directory.
+#[derive(Debug)]
+pub struct CaptureDir {
+    root: PathBuf,
+    info: CaptureInfo,
+    manifest: File,
+    entries: Vec<ManifestEntry>,
+}
+
+impl CaptureDir {
+    pub const INFO: &'static str = "capture.json";
+    pub const MANIFEST: &'static str = "manifest.jsonl";
+    pub const FRAMES: &'static str = "frames";
+
+    /// Start a new capture in `root` (created if missing). Refuses a
+    /// directory that holds another capture or anything else.
+    pub fn create(root: &Path, info: CaptureInfo) -> Result<Self, StoreError> {
+        if root.join(Self::INFO).exists() {
+            let other = Self::read_info(root)?;
+            return Err(StoreError::AnotherCapture {
+                dir: root.display().to_string(),
+                sample: other.sample,
+                created: other.created_utc,
+            });
+        }
+        if root.exists() {
+            let non_empty = fs::read_dir(root)
+                .map_err(|e| io_err("reading", root, e, root))?
+                .next()
+                .is_some();
+            if non_empty {
+                return Err(StoreError::NotEmpty(root.display().to_string()));
+            }
+        }
+        fs::create_dir_all(root.join(Self::FRAMES)).map_err(|e| io_err("creating", root, e, root))?;
+        let bytes = serde_json::to_vec_pretty(&info).map_err(|e| StoreError::Io {
+            what: "encoding",
+            path: Self::INFO.into(),
+            source: io::Error::other(e),
+        })?;
+        write_atomic(&root.join(Self::INFO), &bytes, root)?;
+        let manifest = OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(root.join(Self::MANIFEST))
+            .map_err(|e| io_err("creating", &root.join(Self::MANIFEST), e, root))?;
+        Ok(Self { root: root.to_path_buf(), info, manifest, entries: Vec::new() })
+    }
+
+    /// Read `capture.json` without opening the directory for writing.
+    pub fn read_info(root: &Path) -> Result<CaptureInfo, StoreError> {
+        let path = root.join(Self::INFO);
+        if !path.exists() {
+            return Err(StoreError::NotACapture(root.display().to_string()));
+        }
+        let bytes = fs::read(&path).map_err(|e| io_err("reading", &path, e, root))?;
+        let v: serde_json::Value = serde_json::from_slice(&bytes)
+            .map_err(|e| StoreError::BadCaptureJson { path: path.display().to_string(), reason: e.to_string() })?;
+        let found = v.get("format_version").and_then(|x| x.as_u64()).unwrap_or(0) as u32;
+        if found != CAPTURE_FORMAT_VERSION {
+            return Err(StoreError::Version { path: path.display().to_string(), found });
+        }
+        serde_json::from_value(v)
+            .map_err(|e| StoreError::BadCaptureJson { path: path.display().to_string(), reason: e.to_string() })
+    }
+
+    /// Read the manifest's entries (a torn last line is skipped; a damaged
+    /// line elsewhere is an error, since lines are only ever appended).
+    pub fn read_manifest(root: &Path) -> Result<(Vec<ManifestEntry>, bool), StoreError> {
+        let path = root.join(Self::MANIFEST);
+        let f = match File::open(&path) {
+            Ok(f) => f,
+            Err(e) if e.kind() == io::ErrorKind::NotFound => return Ok((Vec::new(), false)),
+            Err(e) => return Err(io_err("reading", &path, e, root)),
+        };
+        let lines: Vec<String> =
+            BufReader::new(f).lines().collect::<Result<_, _>>().map_err(|e| io_err("reading", &path, e, root))?;
+        let mut out = Vec::with_capacity(lines.len());
+        let mut torn = false;
+        for (k, line) in lines.iter().enumerate() {
+            if line.trim().is_empty() {
+                continue;
+            }
+            match serde_json::from_str::<ManifestEntry>(line) {
+                Ok(e) => out.push(e),
+                Err(_) if k + 1 == lines.len() => torn = true,
+                Err(e) => {
+                    return Err(StoreError::BadCaptureJson {
+                        path: path.display().to_string(),
+                        reason: format!("line {}: {e}", k + 1),
+                    });
+                }
+            }
+        }
+        Ok((out, torn))
+    }
+
+    /// Open an existing capture to continue it: verify every stored frame
+    /// and rewrite the manifest with only the good entries.
+    pub fn resume(root: &Path) -> Result<(Self, ResumeState), StoreError> {
+        let info = Self::read_info(root)?;
+        let (entries, torn_tail) = Self::read_manifest(root)?;
+        let checks: Vec<(ManifestEntry, Result<(), String>)> = entries
+            .into_par_iter()
+            .map(|e| {
+                let r = verify_file(&root.join(&e.file), e.crc32);
+                (e, r)
+            })
+            .collect();
+        let mut state = ResumeState { torn_tail, ..ResumeState::default() };
+        let mut good = Vec::new();
+        let mut seen = HashSet::new();
+        for (e, r) in checks {
+            match r {
+                Ok(()) if seen.insert(e.frame) => {
+                    match e.frame {
+                        FrameKind::Shot { index, .. } => {
+                            state.done_shots.insert(index);
+                        }
+                        FrameKind::Dark { .. } => state.dark_frames.push(e.frame),
+                    }
+                    good.push(e);
+                }
+                Ok(()) => {}
+                Err(reason) => {
+                    tracing::warn!(file = e.file, reason, "dropping a stored frame that does not verify");
+                    let _ = fs::remove_file(root.join(&e.file));
+                    state.damaged.push(e.file.clone());
+                }
+            }
+        }
+        // Leftover temporary files of a frame that was being written.
+        if let Ok(rd) = fs::read_dir(root.join(Self::FRAMES)) {
+            for ent in rd.flatten() {
+                if ent.file_name().to_string_lossy().ends_with(".tmp") {
+                    let _ = fs::remove_file(ent.path());
+                }
+            }
+        }
+        let mut text = String::new();
+        for e in &good {
+            text.push_str(&serde_json::to_string(e).unwrap_or_default());
+            text.push('\n');
+        }
+        write_atomic(&root.join(Self::MANIFEST), text.as_bytes(), root)?;
+        let manifest = OpenOptions::new()
+            .append(true)
+            .open(root.join(Self::MANIFEST))
+            .map_err(|e| io_err("opening", &root.join(Self::MANIFEST), e, root))?;
+        Ok((Self { root: root.to_path_buf(), info, manifest, entries: good }, state))
+    }
+
+    pub fn root(&self) -> &Path {
+        &self.root
+    }
+
+    pub fn info(&self) -> &CaptureInfo {
+        &self.info
+    }
+
+    pub fn entries(&self) -> &[ManifestEntry] {
+        &self.entries
+    }
+
+    pub fn set_status(&mut self, status: CaptureStatus) -> Result<(), StoreError> {
+        self.info.status = status;
+        self.rewrite_info()
+    }
+
+    /// Replace the recorded camera settings (after configuring the device).
+    pub fn set_camera(&mut self, camera: serde_json::Value) -> Result<(), StoreError> {
+        self.info.camera = camera;
+        self.rewrite_info()
+    }
+
+    fn rewrite_info(&self) -> Result<(), StoreError> {
+        let bytes = serde_json::to_vec_pretty(&self.info).map_err(|e| StoreError::Io {
+            what: "encoding",
+            path: Self::INFO.into(),
+            source: io::Error::other(e),
+        })?;
+        write_atomic(&self.root.join(Self::INFO), &bytes, &self.root)
+    }
+
+    /// Store a frame losslessly and record it.
+    pub fn write_frame(&mut self, kind: FrameKind, f: &Frame, lit_at: Option<MonoNs>) -> Result<ManifestEntry, StoreError> {
+        let png = encode_png(f).map_err(|e| StoreError::BadFrame { path: kind.file_name(), reason: e })?;
+        let rel = format!("{}/{}", Self::FRAMES, kind.file_name());
+        let path = self.root.join(&rel);
+        write_atomic(&path, &png, &self.root)?;
+        let entry = ManifestEntry {
+            frame: kind,
+            file: rel,
+            crc32: crc32fast::hash(&png),
+            bytes: png.len() as u64,
+            width: f.width,
+            height: f.height,
+            layout: f.layout,
+            bit_depth: f.bit_depth,
+            meta: f.meta,
+            lit_at_ns: lit_at.map(|m| m.0),
+        };
+        let mut line = serde_json::to_string(&entry).map_err(|e| StoreError::Io {
+            what: "encoding",
+            path: Self::MANIFEST.into(),
+            source: io::Error::other(e),
+        })?;
+        line.push('\n');
+        let mpath = self.root.join(Self::MANIFEST);
+        self.manifest.write_all(line.as_bytes()).map_err(|e| io_err("appending to", &mpath, e, &self.root))?;
+        self.manifest.flush().map_err(|e| io_err("appending to", &mpath, e, &self.root))?;
+        self.entries.push(entry.clone());
+        Ok(entry)
+    }
+
+    /// Read a stored frame back, checking its checksum.
+    pub fn read_frame(root: &Path, e: &ManifestEntry) -> Result<Frame, StoreError> {
+        let path = root.join(&e.file);
+        let bytes = fs::read(&path).map_err(|err| io_err("reading", &path, err, root))?;
+        if crc32fast::hash(&bytes) != e.crc32 {
+            return Err(StoreError::BadFrame { path: path.display().to_string(), reason: "checksum mismatch".into() });
+        }
+        decode_png(&bytes, e).map_err(|reason| StoreError::BadFrame { path: path.display().to_string(), reason })
+    }
+
+    /// Flush the manifest to stable storage.
+    pub fn sync(&self) -> Result<(), StoreError> {
+        self.manifest.sync_data().map_err(|e| io_err("syncing", &self.root.join(Self::MANIFEST), e, &self.root))
+    }
+}
+
+fn verify_file(path: &Path, crc: u32) -> Result<(), String> {
+    let bytes = fs::read(path).map_err(|e| e.to_string())?;
+    if crc32fast::hash(&bytes) == crc { Ok(()) } else { Err("checksum mismatch".into()) }
+}
+
+/// Raw samples as a 16-bit grayscale PNG (interleaved RGB frames as
+/// 16-bit RGB). Values are stored as the sensor gave them (right-aligned).
+fn encode_png(f: &Frame) -> Result<Vec<u8>, String> {
+    use image::ImageEncoder;
+    use image::codecs::png::{CompressionType, FilterType, PngEncoder};
+    let mut out = Vec::with_capacity(f.data.len() * 2);
+    let enc = PngEncoder::new_with_quality(&mut out, CompressionType::Fast, FilterType::Sub);
+    // The encoder takes 16-bit samples in native byte order.
+    let bytes: Vec<u8> = f.data.iter().flat_map(|v| v.to_ne_bytes()).collect();
+    let color = match f.layout {
+        frame::Layout::Rgb => image::ExtendedColorType::Rgb16,
+        _ => image::ExtendedColorType::L16,
+    };
+    enc.write_image(&bytes, f.width, f.height, color).map_err(|e| e.to_string())?;
+    Ok(out)
+}
+
+fn decode_png(bytes: &[u8], e: &ManifestEntry) -> Result<Frame, String> {
+    let img = image::load_from_memory_with_format(bytes, image::ImageFormat::Png).map_err(|e| e.to_string())?;
+    let data: Vec<u16> = match e.layout {
+        frame::Layout::Rgb => img.into_rgb16().into_raw(),
+        _ => img.into_luma16().into_raw(),
+    };
+    let want = (e.width * e.height) as usize * e.layout.samples_per_pixel();
+    if data.len() != want {
+        return Err(format!("holds {} samples, the manifest says {want}", data.len()));
+    }
+    Ok(Frame { width: e.width, height: e.height, layout: e.layout, bit_depth: e.bit_depth, data, meta: e.meta })
+}

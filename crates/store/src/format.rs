@@ -1,0 +1,96 @@
+//! The serialised types of a capture directory.
+
+use frame::{FrameMeta, Layout};
+use serde::{Deserialize, Serialize};
+use setup::{Calibration, CapturePlan, PointGrid, RigGeometry};
+
+/// Version of `capture.json` and `manifest.jsonl`.
+pub const CAPTURE_FORMAT_VERSION: u32 = 1;
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum CaptureStatus {
+    /// Frames are being taken (or the process died while taking them).
+    InProgress,
+    /// Stopped by the operator or an error; `--resume` continues it.
+    Interrupted,
+    /// Every planned frame is stored.
+    Complete,
+}
+
+/// Sensor properties the fitter's noise model needs.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SensorInfo {
+    pub bit_depth: u8,
+    /// Electrons per DN at unit gain (from the datasheet or a photon
+    /// transfer measurement).
+    pub e_per_dn: f32,
+}
+
+/// For simulated captures: what was simulated (the ground truth).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SimInfo {
+    /// Built-in material name, or `None` when `material_dir` is used.
+    pub material: Option<String>,
+    pub material_dir: Option<String>,
+    pub faults: String,
+    pub seed: u64,
+}
+
+/// `capture.json`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CaptureInfo {
+    pub format_version: u32,
+    pub sample: String,
+    pub created_utc: String,
+    pub status: CaptureStatus,
+    pub geometry: RigGeometry,
+    pub plan: CapturePlan,
+    pub calibration: Calibration,
+    /// Where the calibration came from (its directory), if stored.
+    pub calibration_source: Option<String>,
+    pub sensor: SensorInfo,
+    /// The camera's settings as read back from the device.
+    pub camera: serde_json::Value,
+    /// The point grid the material is fitted on.
+    pub grid: PointGrid,
+    /// Quality preset and knobs, as the operator chose them.
+    pub settings: serde_json::Value,
+    pub simulated: Option<SimInfo>,
+}
+
+/// What a stored frame is.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case", tag = "kind")]
+pub enum FrameKind {
+    /// A planned shot: one LED alone at one gantry position and exposure.
+    Shot { index: u32, step: u32, led: u8, exposure: u8, position_um: i32 },
+    /// All LEDs off (black level and fixed pattern).
+    Dark { exposure: u8, n: u32 },
+}
+
+impl FrameKind {
+    pub fn file_name(&self) -> String {
+        match self {
+            FrameKind::Shot { step, led, exposure, .. } => format!("s{step:03}_l{led:02}_e{exposure}.png"),
+            FrameKind::Dark { exposure, n } => format!("dark_e{exposure}_{n:03}.png"),
+        }
+    }
+}
+
+/// One line of `manifest.jsonl`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ManifestEntry {
+    pub frame: FrameKind,
+    /// Path relative to the capture directory.
+    pub file: String,
+    pub crc32: u32,
+    pub bytes: u64,
+    pub width: u32,
+    pub height: u32,
+    pub layout: Layout,
+    pub bit_depth: u8,
+    pub meta: FrameMeta,
+    /// When the LED was known to be lit (monotonic ns), for shots.
+    pub lit_at_ns: Option<u64>,
+}

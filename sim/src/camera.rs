@@ -1,0 +1,403 @@
+//! The simulated camera: renders the frame the real camera would take, from
+//! a material, the rig geometry and the physical timeline.
+//!
+//! For every pixel the ray from the camera meets the sample plane at a
+//! point (precomputed once, with its BRDF, view direction, vignetting and
+//! Bayer colour). For each exposure, the LEDs lit during it are read from
+//! the [`World`] with the carriage position, and each pixel integrates the
+//! light of every LED interval that overlaps the exposure: an LED switched
+//! mid-exposure gives a mixed frame, as on a real sensor. Pixels whose view
+//! of the sample is blocked by the light bar see its black underside.
+//!
+//! Sensor model: electrons = sensitivity x radiance x exposure x vignetting
+//! x (1 + pixel response non-uniformity); shot noise (Poisson, as a Gaussian
+//! of variance equal to the mean above 30 electrons) and read noise;
+//! saturation at the full well; DN = electrons x gain / (electrons per DN)
+//! + black level, rounded and clipped to the bit depth. Noise is seeded by
+//! the physical shot (position, LED, exposure), so a resumed capture sees
+//! exactly the frames an uninterrupted one would.
+//!
+//! Timing: in real time the camera free-runs at its frame rate and a
+//! request waits for the first frame exposed after the LED came on; in fast
+//! mode every duration is multiplied by `time_scale` (frames still carry
+//! consistent timestamps, and signal levels use the nominal exposure).
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use brdf::Brdf;
+use frame::{BayerPattern, Frame, FrameFlags, FrameMeta, Layout, MonoNs};
+use glam::{Vec2, Vec3};
+use material::{PointMaterial, SvBrdf};
+use rand::{Rng, SeedableRng};
+use rand_distr::{Distribution, Normal};
+use rand_pcg::Pcg64;
+use rayon::prelude::*;
+use rig::camera::{AppliedSettings, Camera, CameraError, CameraSettings, FrameFilter, Verdict};
+use rig::clock;
+use setup::RigGeometry;
+use tokio::time::Instant;
+
+use crate::faults::FaultSpec;
+use crate::world::World;
+
+/// The simulated sensor.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SensorModel {
+    pub bit_depth: u8,
+    pub black_level_dn: f32,
+    pub full_well_e: f32,
+    pub read_noise_e: f32,
+    /// Electrons per second per unit radiance (irradiance from an LED of
+    /// unit intensity at 1 mm is 1).
+    pub sensitivity: f32,
+    /// Standard deviation of pixel response non-uniformity.
+    pub prnu: f32,
+    pub pattern: BayerPattern,
+}
+
+impl Default for SensorModel {
+    /// A 12-bit machine-vision sensor: a white reference under the nearest
+    /// LED at 20 ms fills about 40% of the well.
+    fn default() -> Self {
+        Self {
+            bit_depth: 12,
+            black_level_dn: 64.0,
+            full_well_e: 12_000.0,
+            read_noise_e: 6.0,
+            sensitivity: 1.2e9,
+            prnu: 0.005,
+            pattern: BayerPattern::Rggb,
+        }
+    }
+}
+
+impl SensorModel {
+    /// Electrons per DN at unit gain (the full well maps onto the code range).
+    pub fn e_per_dn(&self) -> f32 {
+        self.full_well_e / (((1u32 << self.bit_depth) - 1) as f32 - self.black_level_dn)
+    }
+}
+
+/// The true, unknown-to-the-host LED properties: intensities differ by a few
+/// per cent and the profile is not quite Lambertian. Calibration measures them.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LedTruth {
+    pub scale: Vec<f32>,
+    pub profile_exponent: f32,
+    /// Current at which `scale` holds (intensity is proportional to current).
+    pub nominal_current_ma: u16,
+}
+
+impl LedTruth {
+    pub fn realistic(n_leds: u8, seed: u64) -> Self {
+        let mut rng = Pcg64::seed_from_u64(seed ^ 0x1ed5);
+        let n = Normal::new(1.0f32, 0.04).unwrap_or_else(|_| Normal::new(1.0, 0.0).unwrap());
+        Self {
+            scale: (0..n_leds).map(|_| n.sample(&mut rng).clamp(0.85, 1.15)).collect(),
+            profile_exponent: 1.25,
+            nominal_current_ma: 200,
+        }
+    }
+}
+
+/// How the camera keeps time.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum CameraTiming {
+    /// Every duration (exposure, readout) times `time_scale`; frames are
+    /// produced on request.
+    Fast { time_scale: f32 },
+    /// Free-running at `fps`, frames available `readout_ms` after exposure ends.
+    RealTime { fps: f32, readout_ms: f32 },
+}
+
+#[derive(Clone, Debug)]
+pub struct SimCameraConfig {
+    pub geometry: RigGeometry,
+    pub sensor: SensorModel,
+    pub leds: LedTruth,
+    pub timing: CameraTiming,
+    pub seed: u64,
+    pub faults: FaultSpec,
+    /// Physical rest position of the carriage before the first move (for
+    /// reading positions off the world timeline), micrometres.
+    pub rest_um: f64,
+}
+
+struct Pixel {
+    p: Vec3,
+    o: Vec3,
+    gain: f32,
+    channel: u8,
+    brdf: Option<Arc<PointMaterial>>,
+}
+
+/// Albedo of what surrounds the sample in view (a matte black mount).
+const SURROUND_ALBEDO: f32 = 0.03;
+
+pub struct SimCamera {
+    cfg: SimCameraConfig,
+    world: World,
+    pixels: Arc<Vec<Pixel>>,
+    exposure_us: u32,
+    gain: f32,
+    settings: Option<CameraSettings>,
+    filter: FrameFilter,
+    sequence: u64,
+    requests: u64,
+    started: Instant,
+    dark_counter: u64,
+    unplugged_until: Option<Instant>,
+    fault_rng: Pcg64,
+    pub frames_rendered: u64,
+}
+
+impl std::fmt::Debug for SimCamera {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("SimCamera").field("frames_rendered", &self.frames_rendered).finish_non_exhaustive()
+    }
+}
+
+impl SimCamera {
+    /// Prepare the per-pixel geometry and BRDFs for `material`.
+    pub fn new(cfg: SimCameraConfig, material: Arc<dyn SvBrdf>, world: World) -> Self {
+        let cam = cfg.geometry.camera;
+        let sample = cfg.geometry.sample;
+        let surround: Arc<PointMaterial> = Arc::new(PointMaterial::Diffuse { kd: Vec3::splat(SURROUND_ALBEDO) });
+        let mut resp_rng = Pcg64::seed_from_u64(cfg.seed ^ 0x9e1);
+        let prnu = Normal::new(1.0f32, cfg.sensor.prnu.max(0.0)).unwrap_or_else(|_| Normal::new(1.0, 0.0).unwrap());
+        let responses: Vec<f32> = (0..cam.width * cam.height).map(|_| prnu.sample(&mut resp_rng)).collect();
+        let pixels: Vec<Pixel> = (0..cam.width * cam.height)
+            .into_par_iter()
+            .map(|k| {
+                let (u, v) = (k % cam.width, k / cam.width);
+                let px = Vec2::new(u as f32 + 0.5, v as f32 + 0.5);
+                let channel = cfg.sensor.pattern.channel(u, v) as u8;
+                let gain = cam.vignetting(px) * responses[k as usize];
+                match cam.pixel_to_plane(px) {
+                    Some(q) => {
+                        let p = q.extend(0.0);
+                        let brdf = if sample.contains(q) { Arc::new(material.at(q)) } else { surround.clone() };
+                        Pixel { p, o: cam.view_dir(p), gain, channel, brdf: Some(brdf) }
+                    }
+                    None => Pixel { p: Vec3::ZERO, o: Vec3::Z, gain, channel, brdf: None },
+                }
+            })
+            .collect();
+        let fault_rng = Pcg64::seed_from_u64(cfg.faults.seed ^ 0xca3e);
+        Self {
+            exposure_us: 20_000,
+            gain: 1.0,
+            settings: None,
+            filter: FrameFilter::new(2),
+            sequence: 0,
+            requests: 0,
+            started: Instant::now(),
+            dark_counter: 0,
+            unplugged_until: None,
+            fault_rng,
+            frames_rendered: 0,
+            pixels: Arc::new(pixels),
+            world,
+            cfg,
+        }
+    }
+
+    fn scale(&self) -> f32 {
+        match self.cfg.timing {
+            CameraTiming::Fast { time_scale } => time_scale,
+            CameraTiming::RealTime { .. } => 1.0,
+        }
+    }
+
+    /// Render the frame exposed over `[t0, t1)` (real time), with signal
+    /// computed for the nominal exposure.
+    fn render(&mut self, t0: Instant, t1: Instant, sequence: u64) -> Frame {
+        let g = &self.cfg.geometry;
+        let span = (t1 - t0).as_secs_f64().max(1e-12);
+        let mut lights = Vec::new();
+        for (led, current, s, e) in self.world.led_intervals(t0, t1) {
+            let frac = ((e - s).as_secs_f64() / span) as f32;
+            let mid = s + (e - s) / 2;
+            let bar_x_mm = (self.world.position_at(mid, self.cfg.rest_um) / 1000.0) as f32;
+            let scale = self.cfg.leds.scale.get(led as usize).copied().unwrap_or(0.0)
+                * current as f32
+                / self.cfg.leds.nominal_current_ma.max(1) as f32;
+            lights.push((g.bar.led_position(bar_x_mm, led), bar_x_mm, scale * frac));
+        }
+        let bar_x_now = (self.world.position_at(t0, self.cfg.rest_um) / 1000.0) as f32;
+        // Noise stream: the physical shot, not the order of requests.
+        let key = match self.world.led_at(t0) {
+            Some((led, _)) => (bar_x_now * 1000.0).round() as i64 as u64 ^ ((led as u64) << 40),
+            None => {
+                self.dark_counter += 1;
+                0xda4c_0000_0000_0000 ^ self.dark_counter
+            }
+        };
+        let seed = self.cfg.seed ^ key.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ ((self.exposure_us as u64) << 20) ^ self.gain.to_bits() as u64;
+        let sensor = self.cfg.sensor.clone();
+        let exposure_s = self.exposure_us as f32 * 1e-6;
+        let gain = self.gain;
+        let e_per_dn = sensor.e_per_dn();
+        let max_dn = ((1u32 << sensor.bit_depth) - 1) as f32;
+        let profile = self.cfg.leds.profile_exponent;
+        let eye = g.camera.position_mm;
+        let bar = g.bar;
+        let (w, h) = (g.camera.width as usize, g.camera.height as usize);
+        let pixels = self.pixels.clone();
+        let mut data = vec![0u16; w * h];
+        data.par_chunks_mut(w).enumerate().for_each(|(row, out)| {
+            let mut rng = Pcg64::seed_from_u64(seed ^ (row as u64).wrapping_mul(0xA24B_AED4_963E_E407));
+            let read = Normal::new(0.0f32, sensor.read_noise_e.max(0.0)).unwrap_or_else(|_| Normal::new(0.0, 0.0).unwrap());
+            for (col, dn) in out.iter_mut().enumerate() {
+                let px = &pixels[row * w + col];
+                let mut radiance = 0.0f32;
+                if let Some(b) = &px.brdf {
+                    for &(led_pos, bar_x, intensity) in &lights {
+                        if intensity <= 0.0 || bar.occludes(bar_x, px.p, eye, 0.0) {
+                            continue;
+                        }
+                        let d = led_pos - px.p;
+                        let r2 = d.length_squared();
+                        let i = d / r2.sqrt();
+                        if i.z <= 0.0 {
+                            continue;
+                        }
+                        let cos_emit = i.z; // LED axis points straight down
+                        let irradiance = intensity * cos_emit.powf(profile) * i.z / r2;
+                        radiance += b.eval(i, px.o)[px.channel as usize] * irradiance;
+                    }
+                }
+                let mean_e = (sensor.sensitivity * radiance * exposure_s * px.gain).max(0.0);
+                let shot = if mean_e > 30.0 {
+                    mean_e + mean_e.sqrt() * rng.sample::<f32, _>(rand_distr::StandardNormal)
+                } else {
+                    rand_distr::Poisson::new(mean_e.max(1e-6) as f64).map(|p| p.sample(&mut rng) as f32).unwrap_or(0.0)
+                };
+                let e = shot.min(sensor.full_well_e) + read.sample(&mut rng);
+                let v = e * gain / e_per_dn + sensor.black_level_dn;
+                *dn = v.round().clamp(0.0, max_dn) as u16;
+            }
+        });
+        self.frames_rendered += 1;
+        Frame {
+            width: w as u32,
+            height: h as u32,
+            layout: Layout::Bayer { pattern: sensor.pattern },
+            bit_depth: sensor.bit_depth,
+            data,
+            meta: FrameMeta {
+                sequence,
+                exposure_start: clock::to_mono(t0),
+                exposure_end: clock::to_mono(t1),
+                exposure_us: self.exposure_us,
+                gain,
+                flags: FrameFlags::default(),
+            },
+        }
+    }
+}
+
+impl Camera for SimCamera {
+    fn describe(&self) -> String {
+        "simulated camera".into()
+    }
+
+    async fn configure(&mut self, s: &CameraSettings) -> Result<AppliedSettings, CameraError> {
+        let cam = &self.cfg.geometry.camera;
+        if s.width != cam.width || s.height != cam.height {
+            return Err(CameraError::Unsupported(format!(
+                "the simulated sensor is {}x{}, not {}x{}",
+                cam.width, cam.height, s.width, s.height
+            )));
+        }
+        self.exposure_us = s.exposure_us;
+        self.gain = s.gain;
+        self.filter = FrameFilter::new(s.settle_frames);
+        self.filter.control_changed(Some(self.sequence));
+        self.settings = Some(s.clone());
+        let mut controls = std::collections::BTreeMap::new();
+        controls.insert("exposure_auto".into(), 1);
+        controls.insert("exposure_absolute".into(), (s.exposure_us / 100) as i64);
+        controls.insert("gain".into(), (s.gain * 100.0) as i64);
+        controls.insert("white_balance_automatic".into(), 0);
+        controls.insert("gain_automatic".into(), 0);
+        Ok(AppliedSettings {
+            device: "sim".into(),
+            driver: "reflectometer-sim".into(),
+            format: format!("RG{}", self.cfg.sensor.bit_depth),
+            width: cam.width,
+            height: cam.height,
+            bit_depth: self.cfg.sensor.bit_depth,
+            exposure_us: s.exposure_us,
+            gain: s.gain,
+            controls,
+            warnings: Vec::new(),
+        })
+    }
+
+    async fn set_exposure(&mut self, exposure_us: u32, gain: f32) -> Result<(), CameraError> {
+        if exposure_us != self.exposure_us || gain != self.gain {
+            self.exposure_us = exposure_us;
+            self.gain = gain;
+            self.filter.control_changed(Some(self.sequence));
+        }
+        Ok(())
+    }
+
+    async fn frame_after(&mut self, after: MonoNs, timeout: Duration) -> Result<Frame, CameraError> {
+        self.requests += 1;
+        let faults = self.cfg.faults.clone();
+        let give_up = Instant::now() + timeout;
+        if let Some(until) = self.unplugged_until {
+            if Instant::now() < until {
+                return Err(CameraError::Gone("simulated unplug".into()));
+            }
+            self.unplugged_until = None;
+        }
+        if faults.camera_unplug_at.contains(&self.requests) {
+            self.unplugged_until = Some(Instant::now() + Duration::from_millis(faults.reconnect_ms));
+            return Err(CameraError::Gone("simulated unplug".into()));
+        }
+        if faults.frame_timeout_at.contains(&self.requests) {
+            tokio::time::sleep_until(give_up).await;
+            return Err(CameraError::Timeout { waited_ms: timeout.as_millis() as u64 });
+        }
+        let after_i = clock::to_instant(after).max(Instant::now().min(clock::to_instant(after)));
+        let scale = self.scale();
+        let exposure = Duration::from_secs_f64(self.exposure_us as f64 * 1e-6 * scale as f64);
+        loop {
+            if Instant::now() >= give_up {
+                return Err(CameraError::Timeout { waited_ms: timeout.as_millis() as u64 });
+            }
+            let (t0, deliver) = match self.cfg.timing {
+                CameraTiming::Fast { .. } => {
+                    let t0 = Instant::now().max(after_i);
+                    (t0, t0 + exposure)
+                }
+                CameraTiming::RealTime { fps, readout_ms } => {
+                    let period = 1.0 / fps.max(0.1) as f64;
+                    let since = (after_i.max(Instant::now() - exposure) - self.started).as_secs_f64();
+                    let k = (since / period).ceil().max(0.0);
+                    let t0 = self.started + Duration::from_secs_f64(k * period);
+                    (t0, t0 + exposure + Duration::from_secs_f64(readout_ms as f64 * 1e-3))
+                }
+            };
+            tokio::time::sleep_until(deliver).await;
+            self.sequence += 1;
+            let seq = self.sequence;
+            let mut f = self.render(t0, t0 + exposure, seq);
+            if self.fault_rng.random::<f64>() < faults.error_frame {
+                f.meta.flags.error = true;
+            }
+            if self.fault_rng.random::<f64>() < faults.stale_frame {
+                // A late buffer from before the LED came on.
+                f.meta.exposure_start = MonoNs(after.0.saturating_sub(5_000_000));
+            }
+            match self.filter.judge(&f.meta, after) {
+                Verdict::Accept => return Ok(f),
+                v => tracing::debug!(?v, seq, "simulated frame discarded"),
+            }
+        }
+    }
+}
