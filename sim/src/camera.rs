@@ -211,7 +211,8 @@ impl SimCamera {
     }
 
     /// Render the frame exposed over `[t0, t1)` (real time), with signal
-    /// computed for the nominal exposure.
+    /// computed for the nominal exposure, from the LEDs the world says were
+    /// lit then.
     fn render(&mut self, t0: Instant, t1: Instant, sequence: u64) -> Frame {
         let g = &self.cfg.geometry;
         let span = (t1 - t0).as_secs_f64().max(1e-12);
@@ -220,21 +221,59 @@ impl SimCamera {
             let frac = ((e - s).as_secs_f64() / span) as f32;
             let mid = s + (e - s) / 2;
             let bar_x_mm = (self.world.position_at(mid, self.cfg.rest_um) / 1000.0) as f32;
-            let scale = self.cfg.leds.scale.get(led as usize).copied().unwrap_or(0.0)
-                * current as f32
-                / self.cfg.leds.nominal_current_ma.max(1) as f32;
-            lights.push((g.bar.led_position(bar_x_mm, led), bar_x_mm, scale * frac));
+            lights.push((g.bar.led_position(bar_x_mm, led), bar_x_mm, self.led_intensity(led, current) * frac));
         }
-        let bar_x_now = (self.world.position_at(t0, self.cfg.rest_um) / 1000.0) as f32;
-        // Noise stream: the physical shot, not the order of requests.
-        let key = match self.world.led_at(t0) {
-            Some((led, _)) => (bar_x_now * 1000.0).round() as i64 as u64 ^ ((led as u64) << 40),
+        let bar_um = self.world.position_at(t0, self.cfg.rest_um).round() as i64;
+        let key = self.noise_key(bar_um, self.world.led_at(t0).map(|l| l.0));
+        self.render_lights(&lights, key, t0, t1, sequence)
+    }
+
+    /// Render the frame for the carriage at `position_um` with LED `led`
+    /// (or none: a dark frame) lit at its nominal current, without a world
+    /// timeline or an MCU. The noise is the same as the full path gives for
+    /// the same shot, so direct and rig-driven captures agree.
+    pub fn render_direct(&mut self, position_um: i32, led: Option<u8>) -> Frame {
+        let g = &self.cfg.geometry;
+        let bar_x_mm = position_um as f32 / 1000.0;
+        let lights: Vec<_> = led
+            .map(|l| (g.bar.led_position(bar_x_mm, l), bar_x_mm, self.led_intensity(l, self.cfg.leds.nominal_current_ma)))
+            .into_iter()
+            .collect();
+        let key = self.noise_key(position_um as i64, led);
+        let now = Instant::now();
+        self.sequence += 1;
+        let seq = self.sequence;
+        self.render_lights(&lights, key, now, now, seq)
+    }
+
+    fn led_intensity(&self, led: u8, current_ma: u16) -> f32 {
+        self.cfg.leds.scale.get(led as usize).copied().unwrap_or(0.0) * current_ma as f32
+            / self.cfg.leds.nominal_current_ma.max(1) as f32
+    }
+
+    /// Noise stream of a shot: its physical identity, not the order of requests.
+    fn noise_key(&mut self, bar_um: i64, led: Option<u8>) -> u64 {
+        match led {
+            Some(led) => (bar_um as u64) ^ ((led as u64) << 40),
             None => {
                 self.dark_counter += 1;
                 0xda4c_0000_0000_0000 ^ self.dark_counter
             }
-        };
-        let seed = self.cfg.seed ^ key.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ ((self.exposure_us as u64) << 20) ^ self.gain.to_bits() as u64;
+        }
+    }
+
+    /// Set exposure and gain for [`SimCamera::render_direct`].
+    pub fn set_exposure_direct(&mut self, exposure_us: u32, gain: f32) {
+        self.exposure_us = exposure_us;
+        self.gain = gain;
+    }
+
+    fn render_lights(&mut self, lights: &[(Vec3, f32, f32)], key: u64, t0: Instant, t1: Instant, sequence: u64) -> Frame {
+        let g = &self.cfg.geometry;
+        let seed = self.cfg.seed
+            ^ key.wrapping_mul(0x9E37_79B9_7F4A_7C15)
+            ^ ((self.exposure_us as u64) << 20)
+            ^ self.gain.to_bits() as u64;
         let sensor = self.cfg.sensor.clone();
         let exposure_s = self.exposure_us as f32 * 1e-6;
         let gain = self.gain;
@@ -253,7 +292,7 @@ impl SimCamera {
                 let px = &pixels[row * w + col];
                 let mut radiance = 0.0f32;
                 if let Some(b) = &px.brdf {
-                    for &(led_pos, bar_x, intensity) in &lights {
+                    for &(led_pos, bar_x, intensity) in lights {
                         if intensity <= 0.0 || bar.occludes(bar_x, px.p, eye, 0.0) {
                             continue;
                         }
@@ -295,6 +334,11 @@ impl SimCamera {
                 flags: FrameFlags::default(),
             },
         }
+    }
+
+    /// The sensor's noise parameters as the capture records them.
+    pub fn sensor(&self) -> &SensorModel {
+        &self.cfg.sensor
     }
 }
 
@@ -363,7 +407,7 @@ impl Camera for SimCamera {
             tokio::time::sleep_until(give_up).await;
             return Err(CameraError::Timeout { waited_ms: timeout.as_millis() as u64 });
         }
-        let after_i = clock::to_instant(after).max(Instant::now().min(clock::to_instant(after)));
+        let after_i = clock::to_instant(after);
         let scale = self.scale();
         let exposure = Duration::from_secs_f64(self.exposure_us as f64 * 1e-6 * scale as f64);
         loop {

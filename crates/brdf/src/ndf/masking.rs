@@ -21,8 +21,8 @@ use std::f32::consts::FRAC_PI_2;
 use std::sync::Arc;
 
 use glam::Vec3;
-use rustfft::num_complex::Complex32;
-use rustfft::{Fft, FftPlanner};
+use realfft::num_complex::Complex32;
+use realfft::{ComplexToReal, RealFftPlanner, RealToComplex};
 
 use super::{NdfGrid, NdfTable};
 use crate::frame;
@@ -34,14 +34,21 @@ const KERNEL_SUB_THETA: usize = 8;
 const KERNEL_SUB_PHI: usize = 4;
 
 /// Precomputed kernel spectra for one grid.
+///
+/// The kernel of a ring is real and even in the azimuth offset, so its
+/// spectrum is real: the products are real-by-complex, over the half
+/// spectrum of real FFTs (about 6x fewer operations than complex FFTs with
+/// complex products).
 pub struct MaskingOperator {
     grid: NdfGrid,
     n_theta_k: usize,
-    /// `[j][t][f]`: spectrum of the cell-integrated kernel of ring `t` as seen
-    /// from direction ring `j`.
-    kernel: Vec<Complex32>,
-    fft: Arc<dyn Fft<f32>>,
-    ifft: Arc<dyn Fft<f32>>,
+    /// Number of half-spectrum bins, `n_phi / 2 + 1`.
+    n_freq: usize,
+    /// `[j][t][f]`: real spectrum of the cell-integrated kernel of ring `t`
+    /// as seen from direction ring `j`.
+    kernel: Vec<f32>,
+    r2c: Arc<dyn RealToComplex<f32>>,
+    c2r: Arc<dyn ComplexToReal<f32>>,
 }
 
 impl std::fmt::Debug for MaskingOperator {
@@ -51,7 +58,7 @@ impl std::fmt::Debug for MaskingOperator {
 }
 
 impl MaskingOperator {
-    /// Build the operator for a grid, with `2 * n_theta` direction rings.
+    /// Build the operator for a grid, with `2 * n_theta + 1` direction rings.
     pub fn new(grid: NdfGrid) -> Self {
         Self::with_direction_rings(grid, 2 * grid.n_theta as usize + 1)
     }
@@ -59,17 +66,19 @@ impl MaskingOperator {
     pub fn with_direction_rings(grid: NdfGrid, n_theta_k: usize) -> Self {
         let n_theta_k = n_theta_k.max(2);
         let (nt, np) = (grid.n_theta as usize, grid.n_phi as usize);
-        let mut planner = FftPlanner::new();
-        let fft = planner.plan_fft_forward(np);
-        let ifft = planner.plan_fft_inverse(np);
-        let mut kernel = vec![Complex32::new(0.0, 0.0); n_theta_k * nt * np];
+        let n_freq = np / 2 + 1;
+        let mut planner = RealFftPlanner::<f32>::new();
+        let r2c = planner.plan_fft_forward(np);
+        let c2r = planner.plan_fft_inverse(np);
+        let mut kernel = vec![0.0f32; n_theta_k * nt * n_freq];
         let dphi = grid.dphi();
+        let mut row = vec![0.0f32; np];
+        let mut spec = vec![Complex32::new(0.0, 0.0); n_freq];
         for j in 0..n_theta_k {
             let theta_k = j as f32 / (n_theta_k - 1) as f32 * FRAC_PI_2;
             let (sk, ck) = theta_k.sin_cos();
             for t in 0..nt {
                 let (th0, th1) = (grid.theta_edge(t), grid.theta_edge(t + 1));
-                let row = &mut kernel[(j * nt + t) * np..(j * nt + t + 1) * np];
                 for (delta, slot) in row.iter_mut().enumerate() {
                     // Offsets are symmetric: sector `delta` and `np - delta`
                     // see the same kernel; use the signed offset.
@@ -87,12 +96,17 @@ impl MaskingOperator {
                             }
                         }
                     }
-                    *slot = Complex32::new(acc as f32, 0.0);
+                    *slot = acc as f32;
                 }
-                fft.process(row);
+                // A planned FFT of the right length cannot fail.
+                let _ = r2c.process(&mut row, &mut spec);
+                let dst = &mut kernel[(j * nt + t) * n_freq..(j * nt + t + 1) * n_freq];
+                for (d, c) in dst.iter_mut().zip(&spec) {
+                    *d = c.re;
+                }
             }
         }
-        Self { grid, n_theta_k, kernel, fft, ifft }
+        Self { grid, n_theta_k, n_freq, kernel, r2c, c2r }
     }
 
     pub fn grid(&self) -> NdfGrid {
@@ -103,32 +117,41 @@ impl MaskingOperator {
     /// every direction of the masking grid.
     pub fn projected_areas(&self, table: &NdfTable) -> MaskingTable {
         assert_eq!(table.grid(), self.grid, "masking operator built for another grid");
-        let (nt, np) = (self.grid.n_theta as usize, self.grid.n_phi as usize);
-        let mut spectra = vec![Complex32::new(0.0, 0.0); nt * np];
+        let (nt, np, nf) = (self.grid.n_theta as usize, self.grid.n_phi as usize, self.n_freq);
+        let mut spectra = vec![Complex32::new(0.0, 0.0); nt * nf];
+        let mut row = vec![0.0f32; np];
+        let mut active = vec![false; nt];
         for t in 0..nt {
-            let row = &mut spectra[t * np..(t + 1) * np];
-            for (p, c) in row.iter_mut().enumerate() {
-                *c = Complex32::new(table.at(t, p), 0.0);
+            row.copy_from_slice(&table.values()[t * np..(t + 1) * np]);
+            active[t] = row.iter().any(|&v| v != 0.0);
+            if active[t] {
+                let _ = self.r2c.process(&mut row, &mut spectra[t * nf..(t + 1) * nf]);
             }
-            self.fft.process(row);
         }
         let mut sigma = vec![0.0f32; self.n_theta_k * np];
-        let mut acc = vec![Complex32::new(0.0, 0.0); np];
+        let mut acc = vec![Complex32::new(0.0, 0.0); nf];
+        let mut out = vec![0.0f32; np];
         for j in 0..self.n_theta_k {
             acc.iter_mut().for_each(|c| *c = Complex32::new(0.0, 0.0));
-            for t in 0..nt {
-                let k = &self.kernel[(j * nt + t) * np..(j * nt + t + 1) * np];
-                let d = &spectra[t * np..(t + 1) * np];
-                for f in 0..np {
-                    // Cross-correlation: D spectrum times the conjugate
-                    // kernel spectrum (real here, the kernel being even).
-                    acc[f] += d[f] * k[f].conj();
+            for t in (0..nt).filter(|&t| active[t]) {
+                let k = &self.kernel[(j * nt + t) * nf..(j * nt + t + 1) * nf];
+                let d = &spectra[t * nf..(t + 1) * nf];
+                // Cross-correlation with an even real kernel: a product
+                // with the (real) kernel spectrum.
+                for f in 0..nf {
+                    acc[f] += d[f] * k[f];
                 }
             }
-            self.ifft.process(&mut acc);
+            // The DC (and, for even n, Nyquist) bins of a real signal's
+            // spectrum are real; keep rounding from making them otherwise.
+            acc[0].im = 0.0;
+            if np % 2 == 0 {
+                acc[nf - 1].im = 0.0;
+            }
+            let _ = self.c2r.process(&mut acc, &mut out);
             let scale = 1.0 / np as f32;
             for q in 0..np {
-                sigma[j * np + q] = (acc[q].re * scale).max(0.0);
+                sigma[j * np + q] = (out[q] * scale).max(0.0);
             }
         }
         MaskingTable { n_theta_k: self.n_theta_k, n_phi: np, sigma }

@@ -1,0 +1,128 @@
+//! Everything the fitter precomputes from the rig: for each sample point
+//! its position, camera pixel, view direction and flat field; for each
+//! light (gantry step x LED) its position and calibrated intensity; and,
+//! per (point, light), the sample geometry of the radiometric equation
+//!
+//! `rho = signal r^2 / (S_q F(x) P(cos_emit) cos_i)`  (see `setup::calibration`).
+
+use glam::{Vec2, Vec3};
+use setup::{Calibration, CapturePlan, PointGrid, RigGeometry};
+
+/// The capture-side facts the fitter needs (all recorded in `capture.json`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct FitInputs {
+    pub geometry: RigGeometry,
+    pub plan: CapturePlan,
+    pub calibration: Calibration,
+    pub grid: PointGrid,
+    /// Sensor electrons per DN at unit gain (shot-noise model).
+    pub e_per_dn: f32,
+    pub bit_depth: u8,
+}
+
+/// One light: a (step, LED) pair.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Light {
+    pub step: u32,
+    pub led: u8,
+    pub bar_x_mm: f32,
+    pub pos: Vec3,
+    /// Calibrated intensity `S_q`.
+    pub scale: f32,
+}
+
+/// Geometry of one (point, light) sample.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SampleGeometry {
+    /// Unit direction toward the light.
+    pub i: Vec3,
+    /// Factor from signal to reflectance: `r^2 / (S_q F P cos_i)`.
+    pub to_rho: f32,
+    /// Relative irradiance `S_q F P cos_i / r^2` (for the dim-light mask).
+    pub irradiance: f32,
+    pub occluded: bool,
+}
+
+/// A light below this elevation above the point's horizon (cos 0.035, two
+/// degrees) is dropped: the reflectance estimate divides by `cos_i`, which
+/// there amplifies noise and any error in the sample's height by 30x.
+pub const MIN_COS_I: f32 = 0.035;
+
+/// Safety margin around the light bar when masking occluded samples: one
+/// millimetre covers the bar's edges blurring over a pixel and small
+/// errors of the camera pose.
+pub const OCCLUSION_MARGIN_MM: f32 = 1.0;
+
+#[derive(Debug)]
+pub struct FitContext {
+    pub inputs: FitInputs,
+    pub positions: Vec<Vec3>,
+    /// Continuous pixel coordinates of each point (None if out of view).
+    pub pixels: Vec<Option<Vec2>>,
+    pub view: Vec<Vec3>,
+    pub flat: Vec<f32>,
+    pub lights: Vec<Light>,
+    /// Local spacing of half vectors per light (radians), measured at the
+    /// grid's centre point: sets each sample's splatting kernel.
+    pub spacing_rad: Vec<f32>,
+}
+
+impl FitContext {
+    pub fn new(inputs: FitInputs) -> Self {
+        let g = &inputs.geometry;
+        let n = inputs.grid.len();
+        let mut positions = Vec::with_capacity(n);
+        let mut pixels = Vec::with_capacity(n);
+        let mut view = Vec::with_capacity(n);
+        let mut flat = Vec::with_capacity(n);
+        for i in 0..n {
+            let p = inputs.grid.position_of(&g.sample, i).extend(0.0);
+            positions.push(p);
+            let px = g.camera.project(p).filter(|px| {
+                px.x >= 1.0 && px.y >= 1.0 && px.x <= g.camera.width as f32 - 1.0 && px.y <= g.camera.height as f32 - 1.0
+            });
+            pixels.push(px);
+            view.push(g.camera.view_dir(p));
+            flat.push(inputs.calibration.flat(&inputs.grid, i).max(1e-3));
+        }
+        let mut lights = Vec::with_capacity(inputs.plan.n_lights());
+        for s in 0..inputs.plan.steps {
+            let bar_x_mm = inputs.plan.step_um(s) as f32 / 1000.0;
+            for &led in &inputs.plan.leds {
+                let scale = inputs.calibration.led_scale.get(led as usize).copied().unwrap_or(1.0).max(1e-9);
+                lights.push(Light { step: s, led, bar_x_mm, pos: g.bar.led_position(bar_x_mm, led), scale });
+            }
+        }
+        let centre = inputs.grid.position(&g.sample, inputs.grid.cols / 2, inputs.grid.rows / 2).extend(0.0);
+        let dirs: Vec<Vec3> = lights.iter().map(|l| (l.pos - centre).normalize_or(Vec3::Z)).collect();
+        let spacing_rad = crate::partial::half_vector_spacing(g.camera.view_dir(centre), &dirs);
+        Self { inputs, positions, pixels, view, flat, lights, spacing_rad }
+    }
+
+    pub fn n_points(&self) -> usize {
+        self.positions.len()
+    }
+
+    pub fn n_lights(&self) -> usize {
+        self.lights.len()
+    }
+
+    /// The geometry of point `p` lit by light `q`; `None` if the light is
+    /// at or below the point's horizon (beyond [`MIN_COS_I`]).
+    pub fn sample(&self, p: usize, q: usize) -> Option<SampleGeometry> {
+        let x = self.positions[p];
+        let l = &self.lights[q];
+        let d = l.pos - x;
+        let r2 = d.length_squared();
+        let i = d / r2.sqrt();
+        if i.z < MIN_COS_I {
+            return None;
+        }
+        let cos_emit = i.z; // the LEDs point straight down
+        let profile = cos_emit.powf(self.inputs.calibration.profile_exponent);
+        let irradiance = l.scale * self.flat[p] * profile * i.z / r2;
+        let g = &self.inputs.geometry;
+        let occluded = g.bar.occludes(l.bar_x_mm, x, g.camera.position_mm, OCCLUSION_MARGIN_MM);
+        Some(SampleGeometry { i, to_rho: 1.0 / irradiance, irradiance, occluded })
+    }
+}

@@ -1,0 +1,35 @@
+//! From frames to a measured, spatially varying microfacet material. No IO:
+//! callers stream frames in and get maps and tables out.
+//!
+//! Pipeline (seed talk; DESIGN section 6):
+//! 1. [`ingest`]: frames (streamed during capture, or replayed from a stored
+//!    capture) become per-(light, point) reflectance samples
+//!    `rho = I / ((n.i) L |P - x|^2)` with calibration, dark subtraction,
+//!    HDR merging and masks ([`samples`] holds them; [`context`] the
+//!    geometry).
+//! 2. [`partial`]: per point, the diffuse/specular split ([`diffuse`]), the
+//!    partial NDF by splatting and push-pull ([`pushpull`]), the masking
+//!    term by integration, `k_s` and the Fresnel index; [`points`] runs it
+//!    over the grid in parallel.
+//!
+//! Conventions are those of the `brdf` crate: local frame with the normal
+//! on `+z` and `x` along the gantry, `i` toward the light, `o` toward the
+//! camera, `integral D cos = 1`, and the fitted model
+//! `f = kd / pi + ks D(h) F_rel(i.h) / (4 sigma(i) sigma(o))` with
+//! `F_rel(1) = 1` (so `ks` is the specular albedo at normal incidence).
+
+pub mod context;
+pub mod diffuse;
+pub mod ingest;
+pub mod partial;
+pub mod points;
+pub mod pushpull;
+pub mod samples;
+pub mod settings;
+
+pub use context::{FitContext, FitInputs};
+pub use ingest::Ingest;
+pub use partial::{DEFAULT_ETA, PointFit, PointSamples, Sample, point_flag};
+pub use points::{PointMaps, fit_points};
+pub use samples::SampleStore;
+pub use settings::FitSettings;

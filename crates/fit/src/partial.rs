@@ -1,0 +1,512 @@
+//! From one point's samples to its partial microfacet NDF (DESIGN sec. 6,
+//! steps 1-7, and the seed talk).
+//!
+//! 1. **Diffuse**: the robust lower mode of each channel ([`crate::diffuse`]).
+//! 2. **Specular**: `r_q = rho_q - rho_d`; its colour is the ratio of the
+//!    channels over the samples with significant specular; the scalar
+//!    specular `s_q` is the luminance of `r_q`.
+//! 3. **Splat** `D'_q = 4 s_q sigma(i_q) sigma(o) / F_rel(i_q . h_q)` at the
+//!    half vector `h_q`. This is the talk's
+//!    `D = 4 pi rho_s (i.n)(o.n) / (S(i) S(o))` with the projected-area form
+//!    of `S` (`S / cos = 1 / sigma`) and `k_s` kept in `D'` (the talk's
+//!    `k_s = 1/pi` start is the same thing, scaled). Each sample spreads
+//!    over the cells around `h_q` with an angular Gaussian whose width is
+//!    set by the local spacing of the capture's half vectors
+//!    (`FitContext::kernel_rad`): near the normal the table's cells are far
+//!    smaller than that spacing, and a splat into the four nearest cells
+//!    would leave most of them empty; far from it, half vectors are denser
+//!    and the kernel narrower.
+//! 4. **Observed region**: cells with at least `observed_weight` of kernel
+//!    weight (about a third of what a cell among samples receives), then a
+//!    morphological closing (dilate, erode; 3x3, periodic in phi) that
+//!    fills one-cell gaps without growing the boundary. Gaps inside are
+//!    filled by push-pull ([`crate::pushpull`]); nothing is extrapolated
+//!    beyond the sampling resolution.
+//! 5. **Normalise and mask**: `k_s = integral D' cos`, `D = D' / k_s`,
+//!    `sigma` from `D` by integration, and back to step 3 until `D` changes
+//!    by less than the tolerance.
+//! 6. **Fresnel**: most surfaces' NDFs are centrally symmetric,
+//!    `D(hx, hy) = D(-hx, -hy)`, while the oblique camera sees the two cells
+//!    of such a pair at different angles `theta_d` from `o`. So
+//!    `D'(c) / D'(c') = F(o . h_c) / F(o . h_c')`, which determines `eta`
+//!    with `D` unknown. `eta` minimises the weighted squared log-ratio error
+//!    over every observed pair (golden-section search on `ln eta` in
+//!    `[1.05, 30]`; 30 is a flat, metal-like `F`); then steps 3-5 run again
+//!    with `F_rel(eta)`.
+//!
+//! Every output is finite: a point without usable specular data gets
+//! `k_s = 0`, an empty table and a flag, never NaN.
+
+use brdf::fresnel;
+use brdf::ndf::{Coverage, MaskingOperator, MaskingTable, NdfGrid, NdfTable};
+use glam::Vec3;
+use serde::{Deserialize, Serialize};
+
+use crate::diffuse::lower_mode;
+use crate::pushpull::push_pull;
+use crate::settings::FitSettings;
+
+/// Luminance weights (Rec. 709) that define the scalar specular.
+pub const LUMA: [f32; 3] = [0.2126, 0.7152, 0.0722];
+
+/// Point flags.
+pub mod point_flag {
+    /// No measurable specular reflection: diffuse only.
+    pub const NO_SPECULAR: u32 = 0x01;
+    /// Too few usable samples for a specular fit.
+    pub const FEW_SAMPLES: u32 = 0x02;
+    /// More than 5% of the point's lit samples were clipped in every exposure.
+    pub const SATURATED: u32 = 0x04;
+    /// The masking iteration hit its limit before converging.
+    pub const NOT_CONVERGED: u32 = 0x08;
+    /// Fresnel could not be fitted (too few symmetric pairs); default eta.
+    pub const ETA_DEFAULT: u32 = 0x10;
+    /// The observed region covers less than 2% of the hemisphere's cosine measure.
+    pub const LOW_COVERAGE: u32 = 0x20;
+    /// The point is not seen by the camera.
+    pub const OUT_OF_VIEW: u32 = 0x40;
+    /// The table was completed by synthesis.
+    pub const SYNTHESIZED: u32 = 0x80;
+
+    pub const NAMES: &[(u32, &str)] = &[
+        (NO_SPECULAR, "no_specular"),
+        (FEW_SAMPLES, "few_samples"),
+        (SATURATED, "saturated"),
+        (NOT_CONVERGED, "not_converged"),
+        (ETA_DEFAULT, "eta_default"),
+        (LOW_COVERAGE, "low_coverage"),
+        (OUT_OF_VIEW, "out_of_view"),
+        (SYNTHESIZED, "synthesized"),
+    ];
+}
+
+/// Index of refraction used when it cannot be fitted (typical dielectrics).
+pub const DEFAULT_ETA: f32 = 1.5;
+/// Search range of the Fresnel fit.
+pub const ETA_RANGE: (f32, f32) = (1.05, 30.0);
+
+/// One usable sample of a point.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Sample {
+    /// Direction toward the light (local frame).
+    pub i: Vec3,
+    pub rho: [f32; 3],
+    /// Variance of the sample's luminance reflectance.
+    pub var: f32,
+    /// Angular width (radians) of its splatting kernel.
+    pub kernel_rad: f32,
+}
+
+/// A point's samples and what is needed to interpret them.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct PointSamples {
+    pub o: Vec3,
+    pub samples: Vec<Sample>,
+    /// Lit samples that were clipped in every exposure.
+    pub saturated: usize,
+    /// Lit samples in view (usable + saturated).
+    pub lit: usize,
+    pub in_view: bool,
+}
+
+/// The fit of one point.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PointFit {
+    pub kd: [f32; 3],
+    /// Specular scale per channel: `k_s` times the specular colour.
+    pub ks: [f32; 3],
+    pub eta: f32,
+    pub flags: u32,
+    /// Normalised over the observed region (before synthesis).
+    pub table: NdfTable,
+    pub stats: PointStats,
+}
+
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct PointStats {
+    pub usable: u32,
+    pub saturated: u32,
+    pub significant: u32,
+    pub iterations: u32,
+    /// Standard deviation of the scalar specular noise (median over samples).
+    pub noise: f32,
+    /// Fraction of the hemisphere's cosine measure observed.
+    pub coverage: f32,
+}
+
+/// Working buffers, reused across points by one thread.
+#[derive(Debug, Default)]
+pub struct Scratch {
+    vals: Vec<f32>,
+    vars: Vec<f32>,
+    sort: Vec<f32>,
+    spec: Vec<f32>,
+    h: Vec<Vec3>,
+    /// Kernel cells of every sample, concatenated; `offsets[k]..offsets[k+1]`.
+    cells: Vec<(u32, f32)>,
+    offsets: Vec<usize>,
+    centres: Vec<Vec3>,
+    sum_w: Vec<f32>,
+    sum_wd: Vec<f32>,
+}
+
+/// Scalar specular sample counts as significant above this many standard
+/// deviations: 3 sigma keeps pure-noise false positives at 0.13% per sample.
+const SIGNIFICANT_SIGMA: f32 = 3.0;
+/// Fewer significant samples than this and there is no specular to fit.
+const MIN_SIGNIFICANT: usize = 5;
+/// Fewer symmetric pairs than this and Fresnel is not fitted.
+const MIN_PAIRS: usize = 6;
+
+fn lum(c: [f32; 3]) -> f32 {
+    LUMA[0] * c[0] + LUMA[1] * c[1] + LUMA[2] * c[2]
+}
+
+fn finite_or(v: f32, d: f32) -> f32 {
+    if v.is_finite() { v } else { d }
+}
+
+/// Cells within three kernel widths of `h`, with Gaussian weights
+/// `exp(-d^2 / (2 r^2))` of the chord distance `d` to each cell centre.
+fn kernel_cells(grid: NdfGrid, centres: &[Vec3], h: Vec3, r: f32, out: &mut Vec<(u32, f32)>) {
+    let (nt, np) = (grid.n_theta as usize, grid.n_phi as usize);
+    let reach = 3.0 * r;
+    let theta_h = brdf::frame::sin2_theta(h).sqrt().atan2(h.z);
+    let phi_h = brdf::frame::phi(h);
+    let inv2r2 = 1.0 / (2.0 * r * r);
+    for t in 0..nt {
+        let (t0, t1) = (grid.theta_edge(t), grid.theta_edge(t + 1));
+        if t1 < theta_h - reach || t0 > theta_h + reach {
+            continue;
+        }
+        let s = t0.sin().max(1e-4);
+        let half = if s <= reach { std::f32::consts::PI } else { (reach / s).asin() * 1.3 };
+        let (p_lo, p_hi) = if half >= std::f32::consts::PI {
+            (0i64, np as i64 - 1)
+        } else {
+            let c = phi_h / grid.dphi() - 0.5;
+            ((c - half / grid.dphi()).floor() as i64, (c + half / grid.dphi()).ceil() as i64)
+        };
+        for pp in p_lo..=p_hi {
+            let p = pp.rem_euclid(np as i64) as usize;
+            let c = t * np + p;
+            let d2 = (h - centres[c]).length_squared();
+            if d2 <= reach * reach {
+                out.push((c as u32, (-d2 * inv2r2).exp()));
+            }
+        }
+    }
+}
+
+/// Local spacing of half vectors: for each light direction (seen from
+/// view `o`), the mean angle (radians) from its half vector to its four
+/// nearest neighbours' half vectors.
+pub fn half_vector_spacing(o: Vec3, lights: &[Vec3]) -> Vec<f32> {
+    const K: usize = 4;
+    let hs: Vec<Vec3> = lights.iter().map(|&i| (i + o).normalize_or(Vec3::Z)).collect();
+    hs.iter()
+        .enumerate()
+        .map(|(a, &ha)| {
+            let mut best = [-1.0f32; K];
+            for (b, &hb) in hs.iter().enumerate() {
+                if b == a {
+                    continue;
+                }
+                let c = ha.dot(hb).min(1.0);
+                if c > best[K - 1] && c < 1.0 - 1e-12 {
+                    best[K - 1] = c;
+                    best.sort_by(|x, y| y.total_cmp(x));
+                }
+            }
+            let valid: Vec<f32> = best.iter().filter(|&&c| c > -1.0).map(|&c| c.acos()).collect();
+            if valid.is_empty() { 0.05 } else { valid.iter().sum::<f32>() / valid.len() as f32 }
+        })
+        .collect()
+}
+
+/// Morphological closing of the observed set (3x3, periodic in phi).
+fn close(grid: NdfGrid, observed: &[bool]) -> Vec<bool> {
+    let (nt, np) = (grid.n_theta as usize, grid.n_phi as usize);
+    let morph = |src: &[bool], dilate: bool| -> Vec<bool> {
+        let mut out = vec![false; nt * np];
+        for t in 0..nt {
+            for p in 0..np {
+                let mut acc = !dilate;
+                for dt in -1i64..=1 {
+                    let tt = t as i64 + dt;
+                    if tt < 0 || tt >= nt as i64 {
+                        continue;
+                    }
+                    for dp in -1i64..=1 {
+                        let pp = (p as i64 + dp).rem_euclid(np as i64) as usize;
+                        let v = src[tt as usize * np + pp];
+                        acc = if dilate { acc || v } else { acc && v };
+                    }
+                }
+                out[t * np + p] = acc;
+            }
+        }
+        out
+    };
+    let d = morph(observed, true);
+    let mut c = morph(&d, false);
+    // Closing never removes observed cells.
+    for (o, c) in observed.iter().zip(c.iter_mut()) {
+        *c |= *o;
+    }
+    c
+}
+
+struct Splatted {
+    table: NdfTable,
+    k_s: f32,
+}
+
+/// Steps 3-5 once: splat with the given projected areas and Fresnel.
+fn splat_once(
+    grid: NdfGrid,
+    ps: &PointSamples,
+    spec: &[f32],
+    masking: Option<&MaskingTable>,
+    eta: Option<f32>,
+    settings: &FitSettings,
+    s: &mut Scratch,
+) -> Splatted {
+    let cells = grid.len();
+    s.sum_w.clear();
+    s.sum_w.resize(cells, 0.0);
+    s.sum_wd.clear();
+    s.sum_wd.resize(cells, 0.0);
+    let sigma = |v: Vec3| masking.map_or(v.z, |m| m.projected_area(v));
+    let sigma_o = sigma(ps.o);
+    let f0 = eta.map(fresnel::dielectric_f0);
+    for (k, smp) in ps.samples.iter().enumerate() {
+        let h = s.h[k];
+        let f = match (eta, f0) {
+            (Some(e), Some(f0)) => (fresnel::dielectric(smp.i.dot(h), e) / f0.max(1e-6)).max(1e-3),
+            _ => 1.0,
+        };
+        let d = 4.0 * spec[k] * sigma(smp.i) * sigma_o / f;
+        if !d.is_finite() {
+            continue;
+        }
+        for &(c, w) in &s.cells[s.offsets[k]..s.offsets[k + 1]] {
+            s.sum_w[c as usize] += w;
+            s.sum_wd[c as usize] += w * d;
+        }
+    }
+    let observed: Vec<bool> = s.sum_w.iter().map(|&w| w >= settings.observed_weight).collect();
+    let covered = close(grid, &observed);
+    let mut values: Vec<f32> =
+        s.sum_w.iter().zip(&s.sum_wd).map(|(&w, &wd)| if w > 0.0 { wd / w } else { 0.0 }).collect();
+    let weight: Vec<f32> = s.sum_w.iter().map(|&w| (w / settings.observed_weight).min(1.0)).collect();
+    push_pull(grid.n_theta as usize, grid.n_phi as usize, &mut values, &weight, &covered);
+    let mut cov = Coverage::empty(cells);
+    for (c, v) in values.iter_mut().enumerate() {
+        if covered[c] {
+            cov.set(c, true);
+            *v = finite_or(*v, 0.0).max(0.0);
+        } else {
+            *v = 0.0;
+        }
+    }
+    let mut table = NdfTable::from_values(grid, values, cov).unwrap_or_else(|_| NdfTable::zeros(grid));
+    let k_s = table.normalize();
+    Splatted { table, k_s }
+}
+
+/// Golden-section search of `eta` on centrally symmetric pairs; `None` when
+/// there are too few pairs.
+fn fit_eta(table: &NdfTable, k_s: f32, o: Vec3, observed: &[f32], settings: &FitSettings) -> Option<f32> {
+    let grid = table.grid();
+    let (nt, np) = (grid.n_theta as usize, grid.n_phi as usize);
+    if np % 2 != 0 {
+        return None;
+    }
+    let max = table.values().iter().copied().fold(0.0f32, f32::max);
+    let mut pairs = Vec::new();
+    for t in 1..nt {
+        for p in 0..np / 2 {
+            let (a, b) = (t * np + p, t * np + p + np / 2);
+            if observed[a] < settings.observed_weight || observed[b] < settings.observed_weight {
+                continue;
+            }
+            let (da, db) = (table.values()[a] * k_s, table.values()[b] * k_s);
+            if da < 0.05 * max * k_s || db < 0.05 * max * k_s {
+                continue;
+            }
+            let ca = o.dot(grid.direction(t, p)).clamp(0.0, 1.0);
+            let cb = o.dot(grid.direction(t, p + np / 2)).clamp(0.0, 1.0);
+            let w = (da * db).sqrt() * grid.cos_measure(t);
+            pairs.push(((da / db).ln(), ca, cb, w));
+        }
+    }
+    if pairs.len() < MIN_PAIRS {
+        return None;
+    }
+    let cost = |x: f32| -> f32 {
+        let eta = x.exp();
+        pairs
+            .iter()
+            .map(|&(r, ca, cb, w)| {
+                let m = fresnel::dielectric(ca, eta).max(1e-9).ln() - fresnel::dielectric(cb, eta).max(1e-9).ln();
+                w * (r - m) * (r - m)
+            })
+            .sum()
+    };
+    let (mut lo, mut hi) = (ETA_RANGE.0.ln(), ETA_RANGE.1.ln());
+    let g = 0.618_034f32;
+    let (mut x1, mut x2) = (hi - g * (hi - lo), lo + g * (hi - lo));
+    let (mut f1, mut f2) = (cost(x1), cost(x2));
+    for _ in 0..40 {
+        if f1 < f2 {
+            hi = x2;
+            x2 = x1;
+            f2 = f1;
+            x1 = hi - g * (hi - lo);
+            f1 = cost(x1);
+        } else {
+            lo = x1;
+            x1 = x2;
+            f1 = f2;
+            x2 = lo + g * (hi - lo);
+            f2 = cost(x2);
+        }
+    }
+    let eta = (0.5 * (lo + hi)).exp();
+    eta.is_finite().then_some(eta.clamp(ETA_RANGE.0, ETA_RANGE.1))
+}
+
+/// Fit one point from its samples.
+pub fn fit_point(ps: &PointSamples, settings: &FitSettings, op: &MaskingOperator, s: &mut Scratch) -> PointFit {
+    let grid = settings.grid;
+    let mut flags = 0u32;
+    let mut stats = PointStats { usable: ps.samples.len() as u32, saturated: ps.saturated as u32, ..PointStats::default() };
+    if ps.lit > 0 && ps.saturated as f32 > 0.05 * ps.lit as f32 {
+        flags |= point_flag::SATURATED;
+    }
+    let empty = |kd: [f32; 3], flags: u32, stats: PointStats| PointFit {
+        kd,
+        ks: [0.0; 3],
+        eta: DEFAULT_ETA,
+        flags: flags | point_flag::NO_SPECULAR,
+        table: NdfTable::zeros(grid),
+        stats,
+    };
+    if !ps.in_view {
+        return empty([0.0; 3], flags | point_flag::OUT_OF_VIEW, stats);
+    }
+    // 1. Diffuse, per channel.
+    let mut kd_rho = [0.0f32; 3];
+    s.vars.clear();
+    s.vars.extend(ps.samples.iter().map(|x| x.var));
+    for (c, kd) in kd_rho.iter_mut().enumerate() {
+        s.vals.clear();
+        s.vals.extend(ps.samples.iter().map(|x| x.rho[c]));
+        *kd = lower_mode(&s.vals, &s.vars, &mut s.sort).max(0.0);
+    }
+    let kd = kd_rho.map(|r| finite_or(r * std::f32::consts::PI, 0.0));
+    if ps.samples.len() < settings.min_samples {
+        return empty(kd, flags | point_flag::FEW_SAMPLES, stats);
+    }
+    // 2. Specular residual, colour and scalar.
+    s.spec.clear();
+    let (mut col, mut col_lum) = ([0.0f64; 3], 0.0f64);
+    let mut significant = 0usize;
+    let mut noises = Vec::with_capacity(ps.samples.len());
+    for x in &ps.samples {
+        let r = [x.rho[0] - kd_rho[0], x.rho[1] - kd_rho[1], x.rho[2] - kd_rho[2]];
+        let sv = lum(r);
+        let sd = x.var.max(0.0).sqrt();
+        noises.push(sd);
+        if sv > SIGNIFICANT_SIGMA * sd {
+            significant += 1;
+            for c in 0..3 {
+                col[c] += r[c].max(0.0) as f64;
+            }
+            col_lum += sv as f64;
+        }
+        s.spec.push(sv);
+    }
+    stats.significant = significant as u32;
+    noises.sort_by(|a, b| a.total_cmp(b));
+    stats.noise = noises.get(noises.len() / 2).copied().unwrap_or(0.0);
+    if significant < MIN_SIGNIFICANT || col_lum <= 0.0 {
+        return empty(kd, flags, stats);
+    }
+    let mut colour = [(col[0] / col_lum) as f32, (col[1] / col_lum) as f32, (col[2] / col_lum) as f32];
+    let cl = lum(colour).max(1e-6);
+    colour.iter_mut().for_each(|c| *c = finite_or(*c / cl, 1.0).max(0.0));
+    // Half vectors and kernel cells are fixed across iterations.
+    if s.centres.len() != grid.len() {
+        s.centres = (0..grid.len()).map(|c| grid.direction(c / grid.n_phi as usize, c % grid.n_phi as usize)).collect();
+    }
+    s.h.clear();
+    s.cells.clear();
+    s.offsets.clear();
+    s.offsets.push(0);
+    let centres = std::mem::take(&mut s.centres);
+    for x in &ps.samples {
+        let h = (x.i + ps.o).normalize_or(Vec3::Z);
+        s.h.push(h);
+        kernel_cells(grid, &centres, h, x.kernel_rad.max(1e-3), &mut s.cells);
+        s.offsets.push(s.cells.len());
+    }
+    s.centres = centres;
+    let spec = std::mem::take(&mut s.spec);
+    // 3-5. Splat, normalise, mask, repeat.
+    let iterate = |eta: Option<f32>, s: &mut Scratch, stats: &mut PointStats| -> (Splatted, bool) {
+        let mut cur = splat_once(grid, ps, &spec, None, eta, settings, s);
+        let mut converged = false;
+        for it in 0..settings.max_masking_iterations {
+            stats.iterations += 1;
+            if !(cur.k_s > 0.0) {
+                break;
+            }
+            let m = op.projected_areas(&cur.table);
+            let next = splat_once(grid, ps, &spec, Some(&m), eta, settings, s);
+            let change = next.table.rel_l2(&cur.table, None).unwrap_or(0.0);
+            cur = next;
+            if it > 0 && change < settings.masking_tolerance {
+                converged = true;
+                break;
+            }
+        }
+        (cur, converged)
+    };
+    let (first, mut converged) = iterate(None, s, &mut stats);
+    let mut result = first;
+    let mut eta = DEFAULT_ETA;
+    if settings.fit_fresnel && result.k_s > 0.0 {
+        let observed = s.sum_w.clone();
+        match fit_eta(&result.table, result.k_s, ps.o, &observed, settings) {
+            Some(e) => {
+                eta = e;
+                let (again, c) = iterate(Some(e), s, &mut stats);
+                result = again;
+                converged = c;
+            }
+            None => flags |= point_flag::ETA_DEFAULT,
+        }
+    } else {
+        flags |= point_flag::ETA_DEFAULT;
+    }
+    s.spec = spec;
+    if !converged {
+        flags |= point_flag::NOT_CONVERGED;
+    }
+    let coverage_measure: f32 = (0..grid.len())
+        .filter(|&c| result.table.coverage().get(c))
+        .map(|c| grid.cos_measure(c / grid.n_phi as usize))
+        .sum::<f32>()
+        / std::f32::consts::PI;
+    stats.coverage = coverage_measure;
+    if coverage_measure < 0.02 {
+        flags |= point_flag::LOW_COVERAGE;
+    }
+    if !(result.k_s > 0.0) || !result.k_s.is_finite() {
+        return empty(kd, flags, stats);
+    }
+    let ks = colour.map(|c| finite_or(c * result.k_s, 0.0));
+    PointFit { kd, ks, eta: finite_or(eta, DEFAULT_ETA), flags, table: result.table, stats }
+}

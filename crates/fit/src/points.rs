@@ -1,0 +1,92 @@
+//! Fitting every point, in parallel, into compact per-point maps.
+
+use brdf::ndf::{MaskingOperator, TableSet};
+use rayon::prelude::*;
+
+use crate::context::FitContext;
+use crate::partial::{PointSamples, PointStats, Sample, Scratch, fit_point};
+use crate::samples::{SampleStore, flag};
+use crate::settings::FitSettings;
+
+/// Per-point results over the whole grid.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PointMaps {
+    pub kd: Vec<[f32; 3]>,
+    pub ks: Vec<[f32; 3]>,
+    pub eta: Vec<f32>,
+    pub flags: Vec<u32>,
+    pub tables: TableSet,
+    pub stats: Vec<PointStats>,
+}
+
+impl PointMaps {
+    pub fn len(&self) -> usize {
+        self.kd.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.kd.is_empty()
+    }
+}
+
+/// Collect one point's usable samples with their noise variance.
+pub fn gather(ctx: &FitContext, store: &SampleStore, p: usize, settings: &FitSettings) -> PointSamples {
+    let inputs = &ctx.inputs;
+    let exposures = &inputs.plan.exposures_us;
+    let gain = inputs.plan.gain.max(1e-6);
+    let read = inputs.calibration.read_noise_dn.iter().sum::<f32>() / 3.0;
+    let e_per_dn = inputs.e_per_dn.max(1e-6);
+    let mut ps = PointSamples { o: ctx.view[p], in_view: ctx.pixels[p].is_some(), ..PointSamples::default() };
+    ps.samples.reserve(ctx.n_lights());
+    for q in 0..ctx.n_lights() {
+        let (rho, fl) = store.get(q, p);
+        if fl & (flag::OCCLUDED | flag::OUT_OF_VIEW | flag::DIM | flag::MISSING) == 0 {
+            ps.lit += 1;
+            if fl & flag::SATURATED != 0 {
+                ps.saturated += 1;
+            }
+        }
+        if fl & flag::UNUSABLE != 0 || rho.iter().any(|v| !v.is_finite()) {
+            continue;
+        }
+        let Some(g) = ctx.sample(p, q) else { continue };
+        let e = SampleStore::exposure_of(fl) as usize;
+        let t = exposures.get(e).copied().unwrap_or(exposures[0]) as f32 * 1e-6;
+        // rho = (DN - dark) * k; Var(DN) = read^2 + (DN - dark) gain / e_per_dn.
+        let k = g.to_rho / (t * gain);
+        let l = crate::partial::LUMA.iter().zip(&rho).map(|(w, r)| w * r).sum::<f32>().max(0.0);
+        let var = k * k * read * read + k * l * gain / e_per_dn;
+        let kernel_rad = settings.kernel_scale * ctx.spacing_rad[q];
+        ps.samples.push(Sample { i: g.i, rho, var: var.max(1e-20), kernel_rad });
+    }
+    ps
+}
+
+/// Fit every point (parallel over points).
+pub fn fit_points(ctx: &FitContext, store: &SampleStore, settings: &FitSettings, op: &MaskingOperator) -> PointMaps {
+    let n = ctx.n_points();
+    let fits: Vec<_> = (0..n)
+        .into_par_iter()
+        .map_init(Scratch::default, |scratch, p| {
+            let ps = gather(ctx, store, p, settings);
+            fit_point(&ps, settings, op, scratch)
+        })
+        .collect();
+    let mut maps = PointMaps {
+        kd: Vec::with_capacity(n),
+        ks: Vec::with_capacity(n),
+        eta: Vec::with_capacity(n),
+        flags: Vec::with_capacity(n),
+        tables: TableSet::new(settings.grid, n),
+        stats: Vec::with_capacity(n),
+    };
+    for (p, f) in fits.into_iter().enumerate() {
+        maps.kd.push(f.kd);
+        maps.ks.push(f.ks);
+        maps.eta.push(f.eta);
+        maps.flags.push(f.flags);
+        maps.tables.set(p, &f.table);
+        maps.stats.push(f.stats);
+    }
+    maps
+}
