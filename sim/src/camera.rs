@@ -215,10 +215,16 @@ impl SimCamera {
     /// lit then.
     fn render(&mut self, t0: Instant, t1: Instant, sequence: u64) -> Frame {
         let g = &self.cfg.geometry;
-        let span = (t1 - t0).as_secs_f64().max(1e-12);
+        let span = (t1 - t0).as_secs_f64();
         let mut lights = Vec::new();
-        for (led, current, s, e) in self.world.led_intervals(t0, t1) {
-            let frac = ((e - s).as_secs_f64() / span) as f32;
+        let intervals = if span > 0.0 {
+            self.world.led_intervals(t0, t1)
+        } else {
+            // An instantaneous exposure (fast mode): the LED lit at t0.
+            self.world.led_at(t0).map(|(l, c)| (l, c, t0, t0)).into_iter().collect()
+        };
+        for (led, current, s, e) in intervals {
+            let frac = if span > 0.0 { ((e - s).as_secs_f64() / span) as f32 } else { 1.0 };
             let mid = s + (e - s) / 2;
             let bar_x_mm = (self.world.position_at(mid, self.cfg.rest_um) / 1000.0) as f32;
             lights.push((g.bar.led_position(bar_x_mm, led), bar_x_mm, self.led_intensity(led, current) * frac));
@@ -236,7 +242,9 @@ impl SimCamera {
         let g = &self.cfg.geometry;
         let bar_x_mm = position_um as f32 / 1000.0;
         let lights: Vec<_> = led
-            .map(|l| (g.bar.led_position(bar_x_mm, l), bar_x_mm, self.led_intensity(l, self.cfg.leds.nominal_current_ma)))
+            .map(|l| {
+                (g.bar.led_position(bar_x_mm, l), bar_x_mm, self.led_intensity(l, self.cfg.leds.nominal_current_ma))
+            })
             .into_iter()
             .collect();
         let key = self.noise_key(position_um as i64, led);
@@ -268,7 +276,14 @@ impl SimCamera {
         self.gain = gain;
     }
 
-    fn render_lights(&mut self, lights: &[(Vec3, f32, f32)], key: u64, t0: Instant, t1: Instant, sequence: u64) -> Frame {
+    fn render_lights(
+        &mut self,
+        lights: &[(Vec3, f32, f32)],
+        key: u64,
+        t0: Instant,
+        t1: Instant,
+        sequence: u64,
+    ) -> Frame {
         let g = &self.cfg.geometry;
         let seed = self.cfg.seed
             ^ key.wrapping_mul(0x9E37_79B9_7F4A_7C15)
@@ -287,7 +302,8 @@ impl SimCamera {
         let mut data = vec![0u16; w * h];
         data.par_chunks_mut(w).enumerate().for_each(|(row, out)| {
             let mut rng = Pcg64::seed_from_u64(seed ^ (row as u64).wrapping_mul(0xA24B_AED4_963E_E407));
-            let read = Normal::new(0.0f32, sensor.read_noise_e.max(0.0)).unwrap_or_else(|_| Normal::new(0.0, 0.0).unwrap());
+            let read =
+                Normal::new(0.0f32, sensor.read_noise_e.max(0.0)).unwrap_or_else(|_| Normal::new(0.0, 0.0).unwrap());
             for (col, dn) in out.iter_mut().enumerate() {
                 let px = &pixels[row * w + col];
                 let mut radiance = 0.0f32;

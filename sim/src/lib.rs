@@ -9,8 +9,8 @@
 
 pub mod camera;
 pub mod faults;
-pub mod materials;
 pub mod link;
+pub mod materials;
 pub mod mcu;
 pub mod world;
 

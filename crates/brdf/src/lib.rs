@@ -35,6 +35,7 @@ pub mod frame;
 pub mod fresnel;
 pub mod model;
 pub mod ndf;
+pub mod params;
 
 pub use model::{Brdf, BrdfSample};
 pub use ndf::Ndf;

@@ -79,11 +79,14 @@ impl FitContext {
             let p = inputs.grid.position_of(&g.sample, i).extend(0.0);
             positions.push(p);
             let px = g.camera.project(p).filter(|px| {
-                px.x >= 1.0 && px.y >= 1.0 && px.x <= g.camera.width as f32 - 1.0 && px.y <= g.camera.height as f32 - 1.0
+                px.x >= 1.0
+                    && px.y >= 1.0
+                    && px.x <= g.camera.width as f32 - 1.0
+                    && px.y <= g.camera.height as f32 - 1.0
             });
             pixels.push(px);
             view.push(g.camera.view_dir(p));
-            flat.push(inputs.calibration.flat(&inputs.grid, i).max(1e-3));
+            flat.push(inputs.calibration.flat_at(&g.sample, p.truncate()).max(1e-3));
         }
         let mut lights = Vec::with_capacity(inputs.plan.n_lights());
         for s in 0..inputs.plan.steps {

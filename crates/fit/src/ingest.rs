@@ -112,7 +112,8 @@ impl<'a> Ingest<'a> {
         }
         let img = frame.to_rgb();
         let scale = 1.0 / (frame.meta.exposure_us.max(1) as f32 * 1e-6 * frame.meta.gain.max(1e-6));
-        let darks: Vec<[f32; 3]> = ctx.pixels.iter().map(|px| px.map_or([0.0; 3], |px| self.dark_at(shot.exposure, px))).collect();
+        let darks: Vec<[f32; 3]> =
+            ctx.pixels.iter().map(|px| px.map_or([0.0; 3], |px| self.dark_at(shot.exposure, px))).collect();
         let peak = &self.peak_irradiance;
         let (rho_row, flag_row) = self.store.row_mut(q);
         rho_row.par_iter_mut().zip(flag_row.par_iter_mut()).enumerate().for_each(|(p, (rho, fl))| {
@@ -141,7 +142,10 @@ impl<'a> Ingest<'a> {
             let prev_sat = *fl & flag::SATURATED != 0;
             let prev_e = SampleStore::exposure_of(*fl) as usize;
             let longer = exposures[e] > exposures[prev_e.min(exposures.len() - 1)];
-            let take = prev_missing || (prev_sat && !clipped) || (!prev_sat && !clipped && longer) || (prev_sat && clipped && !longer);
+            let take = prev_missing
+                || (prev_sat && !clipped)
+                || (!prev_sat && !clipped && longer)
+                || (prev_sat && clipped && !longer);
             if !take {
                 return;
             }

@@ -18,6 +18,7 @@
 //! `f = kd / pi + ks D(h) F_rel(i.h) / (4 sigma(i) sigma(o))` with
 //! `F_rel(1) = 1` (so `ks` is the specular albedo at normal incidence).
 
+pub mod calibrate;
 pub mod context;
 pub mod diffuse;
 pub mod ingest;

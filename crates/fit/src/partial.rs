@@ -381,7 +381,8 @@ fn fit_eta(table: &NdfTable, k_s: f32, o: Vec3, observed: &[f32], settings: &Fit
 pub fn fit_point(ps: &PointSamples, settings: &FitSettings, op: &MaskingOperator, s: &mut Scratch) -> PointFit {
     let grid = settings.grid;
     let mut flags = 0u32;
-    let mut stats = PointStats { usable: ps.samples.len() as u32, saturated: ps.saturated as u32, ..PointStats::default() };
+    let mut stats =
+        PointStats { usable: ps.samples.len() as u32, saturated: ps.saturated as u32, ..PointStats::default() };
     if ps.lit > 0 && ps.saturated as f32 > 0.05 * ps.lit as f32 {
         flags |= point_flag::SATURATED;
     }

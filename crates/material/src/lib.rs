@@ -1,8 +1,16 @@
 //! Materials: what a point of a sample reflects ([`PointMaterial`]), the
 //! spatially varying interface every consumer evaluates ([`SvBrdf`]: the
-//! simulated camera, the renderer, the evaluator), and the on-disk format
-//! the fitter writes.
+//! simulated camera, the renderer, the evaluator), the fitted material in
+//! memory ([`Material`]), its on-disk format ([`io`], specified in
+//! `MATERIAL.md`), and a view that evaluates any stored model
+//! ([`MaterialView`]).
 
+pub mod data;
+pub mod io;
 pub mod point;
+pub mod view;
 
+pub use data::{Choice, ChoiceMap, Material, ModelMap, NdfKind};
+pub use io::{MaterialError, read, write};
 pub use point::{PointMaterial, SvBrdf};
+pub use view::{MaterialView, ModelChoice};

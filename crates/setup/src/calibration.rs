@@ -63,11 +63,22 @@ impl Calibration {
         }
     }
 
-    /// Flat-field factor of point `i` of `grid`, 1 if none was measured on it.
-    pub fn flat(&self, grid: &crate::geometry::PointGrid, i: usize) -> f32 {
-        match self.flat_field_grid {
-            Some(g) if g == *grid && i < self.flat_field.len() => self.flat_field[i],
-            _ => 1.0,
+    /// Flat-field factor at a sample position (bilinear over the grid it
+    /// was measured on, clamped at the edges); 1 if none was measured.
+    pub fn flat_at(&self, sample: &crate::geometry::SampleArea, p_mm: glam::Vec2) -> f32 {
+        let Some(g) = self.flat_field_grid else { return 1.0 };
+        if self.flat_field.len() != g.len() || g.is_empty() {
+            return 1.0;
         }
+        let c = g.coords(sample, p_mm) - glam::Vec2::splat(0.5);
+        let x = c.x.clamp(0.0, (g.cols - 1) as f32);
+        let y = c.y.clamp(0.0, (g.rows - 1) as f32);
+        let (x0, y0) = (x as usize, y as usize);
+        let (x1, y1) = ((x0 + 1).min(g.cols as usize - 1), (y0 + 1).min(g.rows as usize - 1));
+        let (fx, fy) = (x - x0 as f32, y - y0 as f32);
+        let at = |xx: usize, yy: usize| self.flat_field[yy * g.cols as usize + xx];
+        let v =
+            (at(x0, y0) * (1.0 - fx) + at(x1, y0) * fx) * (1.0 - fy) + (at(x0, y1) * (1.0 - fx) + at(x1, y1) * fx) * fy;
+        if v.is_finite() && v > 0.0 { v } else { 1.0 }
     }
 }

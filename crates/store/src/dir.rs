@@ -11,10 +11,11 @@ use thiserror::Error;
 
 use crate::format::{CAPTURE_FORMAT_VERSION, CaptureInfo, CaptureStatus, FrameKind, ManifestEntry};
 
-
 #[derive(Debug, Error)]
 pub enum StoreError {
-    #[error("{dir} already holds a capture of '{sample}' made {created}; choose another --out, or continue it with --resume {dir}")]
+    #[error(
+        "{dir} already holds a capture of '{sample}' made {created}; choose another --out, or continue it with --resume {dir}"
+    )]
     AnotherCapture { dir: String, sample: String, created: String },
     #[error("{0} exists and is not empty, and is not a capture directory; choose an empty or new directory")]
     NotEmpty(String),
@@ -24,7 +25,9 @@ pub enum StoreError {
     BadCaptureJson { path: String, reason: String },
     #[error("{path} was written by format version {found}; this program reads version {CAPTURE_FORMAT_VERSION}")]
     Version { path: String, found: u32 },
-    #[error("the disk holding {dir} is full; free some space, then continue with --resume {dir} (nothing stored so far is lost)")]
+    #[error(
+        "the disk holding {dir} is full; free some space, then continue with --resume {dir} (nothing stored so far is lost)"
+    )]
     DiskFull { dir: String },
     #[error("{what} {path}: {source}")]
     Io { what: &'static str, path: String, source: io::Error },
@@ -100,10 +103,7 @@ impl CaptureDir {
             });
         }
         if root.exists() {
-            let non_empty = fs::read_dir(root)
-                .map_err(|e| io_err("reading", root, e, root))?
-                .next()
-                .is_some();
+            let non_empty = fs::read_dir(root).map_err(|e| io_err("reading", root, e, root))?.next().is_some();
             if non_empty {
                 return Err(StoreError::NotEmpty(root.display().to_string()));
             }
@@ -259,7 +259,12 @@ impl CaptureDir {
     }
 
     /// Store a frame losslessly and record it.
-    pub fn write_frame(&mut self, kind: FrameKind, f: &Frame, lit_at: Option<MonoNs>) -> Result<ManifestEntry, StoreError> {
+    pub fn write_frame(
+        &mut self,
+        kind: FrameKind,
+        f: &Frame,
+        lit_at: Option<MonoNs>,
+    ) -> Result<ManifestEntry, StoreError> {
         let png = encode_png(f).map_err(|e| StoreError::BadFrame { path: kind.file_name(), reason: e })?;
         let rel = format!("{}/{}", Self::FRAMES, kind.file_name());
         let path = self.root.join(&rel);

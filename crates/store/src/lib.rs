@@ -21,4 +21,4 @@ mod dir;
 mod format;
 
 pub use dir::{CaptureDir, ResumeState, StoreError};
-pub use format::{CaptureInfo, CaptureStatus, FrameKind, ManifestEntry, SensorInfo, SimInfo, CAPTURE_FORMAT_VERSION};
+pub use format::{CAPTURE_FORMAT_VERSION, CaptureInfo, CaptureStatus, FrameKind, ManifestEntry, SensorInfo, SimInfo};

@@ -5,7 +5,7 @@ use std::fs;
 
 use frame::{BayerPattern, Frame, FrameFlags, FrameMeta, Layout, MonoNs};
 use setup::{Calibration, CapturePlan, PointGrid, RigGeometry};
-use store::{CaptureDir, CaptureInfo, CaptureStatus, FrameKind, SensorInfo, StoreError, CAPTURE_FORMAT_VERSION};
+use store::{CAPTURE_FORMAT_VERSION, CaptureDir, CaptureInfo, CaptureStatus, FrameKind, SensorInfo, StoreError};
 
 fn info() -> CaptureInfo {
     let g = RigGeometry::default();

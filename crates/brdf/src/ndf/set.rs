@@ -94,7 +94,11 @@ impl TableSet {
     /// Rebuild from raw storage; `None` if the lengths do not fit the grid.
     pub fn from_raw(grid: NdfGrid, len: usize, values: Vec<f16>, coverage: Vec<u64>) -> Option<Self> {
         let cells = grid.len();
-        (values.len() == len * cells && coverage.len() == len * cells.div_ceil(64))
-            .then_some(Self { grid, len, values, coverage })
+        (values.len() == len * cells && coverage.len() == len * cells.div_ceil(64)).then_some(Self {
+            grid,
+            len,
+            values,
+            coverage,
+        })
     }
 }

@@ -50,7 +50,9 @@ pub struct AppliedSettings {
 
 #[derive(Debug, Error)]
 pub enum CameraError {
-    #[error("no usable frame within {waited_ms} ms (is the camera streaming? check its cable and that no other program uses it)")]
+    #[error(
+        "no usable frame within {waited_ms} ms (is the camera streaming? check its cable and that no other program uses it)"
+    )]
     Timeout { waited_ms: u64 },
     #[error("the camera disappeared ({0}); check its USB cable")]
     Gone(String),
@@ -66,7 +68,10 @@ pub trait Camera: Send {
 
     /// Set format, size, exposure, gain and every automatic mode off; read
     /// everything back.
-    fn configure(&mut self, settings: &CameraSettings) -> impl Future<Output = Result<AppliedSettings, CameraError>> + Send;
+    fn configure(
+        &mut self,
+        settings: &CameraSettings,
+    ) -> impl Future<Output = Result<AppliedSettings, CameraError>> + Send;
 
     /// Change exposure and gain between frames (HDR brackets).
     fn set_exposure(&mut self, exposure_us: u32, gain: f32) -> impl Future<Output = Result<(), CameraError>> + Send;
@@ -74,5 +79,9 @@ pub trait Camera: Send {
     /// The first good frame whose exposure started at or after `after`
     /// (error-flagged frames, frames from before `after`, and frames within
     /// the settle window of a control change are discarded).
-    fn frame_after(&mut self, after: MonoNs, timeout: Duration) -> impl Future<Output = Result<Frame, CameraError>> + Send;
+    fn frame_after(
+        &mut self,
+        after: MonoNs,
+        timeout: Duration,
+    ) -> impl Future<Output = Result<Frame, CameraError>> + Send;
 }

@@ -1,0 +1,148 @@
+//! `capture`: the lab operator's acquisition command.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use clap::Parser;
+use cli::capture::{self, CaptureRequest, Interrupted};
+use cli::presets::Overrides;
+use cli::progress::Reporter;
+use cli::rigfile::RigFile;
+
+/// Scan a flat material sample and fit its spatially varying, anisotropic
+/// reflectance. With no rig configured it runs the simulated rig.
+#[derive(Debug, Parser)]
+#[command(
+    name = "capture",
+    version,
+    after_help = "Examples:\n  capture --sample satin --out runs/satin\n  capture --resume runs/satin\n  capture --calibrate dark && capture --calibrate white"
+)]
+struct Args {
+    /// Sample name (on the simulated rig: a built-in material, see --list-samples).
+    #[arg(long)]
+    sample: Option<String>,
+    /// Capture directory to create.
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Continue an interrupted capture in DIR (verifies every stored frame).
+    #[arg(long, value_name = "DIR", conflicts_with_all = ["sample", "out", "calibrate"])]
+    resume: Option<PathBuf>,
+    /// Speed/accuracy preset: fast, balanced or best.
+    #[arg(long, default_value = "balanced")]
+    quality: String,
+    /// Rig file (default: /etc/reflectometer/rig.toml if present, else the simulated rig).
+    #[arg(long, value_name = "FILE")]
+    rig: Option<PathBuf>,
+    /// Simulated rig: use a stored material as the ground truth.
+    #[arg(long, value_name = "DIR")]
+    sim_material: Option<PathBuf>,
+    /// Simulated rig: inject faults, e.g. corrupt=0.01,drop=0.005,reboot-at=500.
+    #[arg(long, value_name = "SPEC", default_value = "")]
+    sim_faults: String,
+    /// Record a calibration instead of a sample: `dark` (lens capped) or `white` (white reference).
+    #[arg(long, value_parser = ["dark", "white"])]
+    calibrate: Option<String>,
+    /// Where calibrations are kept (default: the data directory).
+    #[arg(long, value_name = "DIR")]
+    calib_dir: Option<PathBuf>,
+    /// Gantry steps (overrides the preset).
+    #[arg(long)]
+    steps: Option<u32>,
+    /// Use every N-th LED (overrides the preset).
+    #[arg(long)]
+    led_stride: Option<u8>,
+    /// HDR brackets per LED, 8x apart (overrides the preset).
+    #[arg(long)]
+    hdr: Option<u32>,
+    /// Sample points per side of the fitted material (overrides the preset).
+    #[arg(long)]
+    grid: Option<u32>,
+    /// Simulated camera pixels per side (overrides the preset).
+    #[arg(long)]
+    camera_px: Option<u32>,
+    /// Capture only; do not fit.
+    #[arg(long)]
+    no_fit: bool,
+    /// Emit machine-readable progress events (JSON lines on stdout).
+    #[arg(long)]
+    json: bool,
+    /// List the simulated rig's built-in samples and exit.
+    #[arg(long)]
+    list_samples: bool,
+    /// Stop after this many shots, keeping everything (for demonstrations of --resume).
+    #[arg(long, hide = true)]
+    stop_after: Option<u64>,
+}
+
+fn main() -> ExitCode {
+    cli::init_logging();
+    let args = Args::parse();
+    if args.list_samples {
+        for (n, d) in sim::materials::BUILTIN {
+            println!("{n:14} {d}");
+        }
+        return ExitCode::SUCCESS;
+    }
+    let mut rep = Reporter::auto(args.json);
+    let rt = match tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build() {
+        Ok(rt) => rt,
+        Err(e) => {
+            eprintln!("error: cannot start the async runtime: {e}");
+            return ExitCode::from(cli::exit::FAILED as u8);
+        }
+    };
+    let result = rt.block_on(async {
+        if let Some(which) = &args.calibrate {
+            let (rf, _) = RigFile::load(args.rig.as_deref())?;
+            let q = cli::presets::preset(&args.quality)
+                .ok_or_else(|| anyhow::anyhow!("unknown quality '{}'", args.quality))?;
+            let g = capture::geometry_for(&rf, &q);
+            let store = cli::calib::CalibrationStore::new(args.calib_dir.as_deref(), &rf.name);
+            if rf.kind != cli::rigfile::RigKind::Sim {
+                anyhow::bail!(
+                    "calibrating a hardware rig needs the V4L2 camera backend, which this build does not include yet"
+                );
+            }
+            let c = capture::calibrate_sim(&rf, &g, &store, &mut rep, which == "white").await?;
+            rep.emit(cli::progress::Event::Done { summary: serde_json::json!({ "calibration": c.id }) });
+            return anyhow::Ok(());
+        }
+        let req = CaptureRequest {
+            sample: args.sample.clone(),
+            out: args.out.clone(),
+            resume: args.resume.clone(),
+            quality: Some(args.quality.clone()),
+            overrides: Overrides {
+                steps: args.steps,
+                led_stride: args.led_stride,
+                hdr: args.hdr,
+                grid: args.grid,
+                camera_px: args.camera_px,
+                ..Overrides::default()
+            },
+            rig_file: args.rig.clone(),
+            sim_material: args.sim_material.clone(),
+            sim_faults: args.sim_faults.clone(),
+            calib_dir: args.calib_dir.clone(),
+            no_fit: args.no_fit,
+            stop_after: args.stop_after,
+        };
+        let (_tx, rx) = tokio::sync::watch::channel(false);
+        let summary = capture::run(req, &mut rep, rx).await?;
+        if !args.json {
+            eprintln!("capture: {}", summary.dir.display());
+            if let Some(m) = &summary.material {
+                eprintln!("material: {}", m.display());
+            }
+        }
+        Ok(())
+    });
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            let interrupted = e.downcast_ref::<Interrupted>().is_some();
+            rep.emit(cli::progress::Event::Error { message: format!("{e:#}") });
+            ExitCode::from(if interrupted { cli::exit::INTERRUPTED } else { cli::exit::FAILED } as u8)
+        }
+    }
+}

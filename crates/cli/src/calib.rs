@@ -1,0 +1,171 @@
+//! Calibrations: where they are kept, and the dark and white scans that
+//! produce them (`capture --calibrate dark|white`).
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use anyhow::{Context, Result, bail};
+use fit::{FitContext, FitInputs};
+use rig::camera::{Camera, CameraSettings};
+use rig::clock;
+use rig::mcu::{Connector, Rig};
+use setup::{Calibration, CapturePlan, PointGrid, RigGeometry};
+
+use crate::paths;
+use crate::progress::{Event, Reporter};
+
+/// Calibrations of one rig, newest last by id (a UTC timestamp).
+#[derive(Clone, Debug)]
+pub struct CalibrationStore {
+    dir: PathBuf,
+}
+
+impl CalibrationStore {
+    pub fn new(base: Option<&Path>, rig_name: &str) -> Self {
+        let base = base.map(Path::to_path_buf).unwrap_or_else(|| paths::data_dir().join("calibration"));
+        Self { dir: base.join(rig_name) }
+    }
+
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+
+    /// The newest calibration, with its file.
+    pub fn newest(&self) -> Result<Option<(PathBuf, Calibration)>> {
+        let rd = match std::fs::read_dir(&self.dir) {
+            Ok(r) => r,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
+            Err(e) => return Err(e).with_context(|| format!("cannot read {}", self.dir.display())),
+        };
+        let mut files: Vec<PathBuf> =
+            rd.flatten().map(|e| e.path()).filter(|p| p.extension().is_some_and(|x| x == "json")).collect();
+        files.sort();
+        match files.pop() {
+            Some(p) => {
+                let text = std::fs::read_to_string(&p).with_context(|| format!("cannot read {}", p.display()))?;
+                let c: Calibration = serde_json::from_str(&text).with_context(|| {
+                    format!("{} is not a calibration; delete it or run capture --calibrate again", p.display())
+                })?;
+                Ok(Some((p, c)))
+            }
+            None => Ok(None),
+        }
+    }
+
+    pub fn save(&self, c: &Calibration) -> Result<PathBuf> {
+        std::fs::create_dir_all(&self.dir).with_context(|| format!("cannot create {}", self.dir.display()))?;
+        let p = self.dir.join(format!("{}.json", c.id));
+        let tmp = self.dir.join(format!(".{}.tmp", c.id));
+        std::fs::write(&tmp, serde_json::to_vec_pretty(c)?)
+            .with_context(|| format!("cannot write {}", tmp.display()))?;
+        std::fs::rename(&tmp, &p)?;
+        Ok(p)
+    }
+}
+
+/// Number of dark frames a dark calibration averages.
+pub const DARK_FRAMES: u32 = 16;
+
+/// Dark scan: every LED off, frames at the default exposure; the black
+/// level and read noise per colour.
+pub async fn dark<K: Connector, C: Camera>(
+    rig: &mut Rig<K>,
+    camera: &mut C,
+    base: Calibration,
+    settings: &CameraSettings,
+    rep: &mut Reporter,
+) -> Result<Calibration> {
+    rep.stage("calibrate", "dark scan: all LEDs off");
+    camera.configure(settings).await?;
+    rig.all_off().await?;
+    let off_at = clock::to_mono(tokio::time::Instant::now());
+    let mut frames = Vec::new();
+    for _ in 0..DARK_FRAMES {
+        frames.push(camera.frame_after(off_at, Duration::from_secs(5)).await?);
+        rig.keepalive().await?;
+    }
+    let Some((black, noise)) = fit::calibrate::dark_statistics(&frames) else { bail!("the dark scan gave no pixels") };
+    rep.stage("calibrate", format!("black level {black:.1?} DN, read noise {noise:.2?} DN"));
+    Ok(Calibration { id: paths::utc_stamp(), black_level: black, read_noise_dn: noise, ..base })
+}
+
+/// White scan: the white reference under every LED at every step of a
+/// plan; solves LED intensities, emission profile and flat field.
+#[allow(clippy::too_many_arguments)]
+pub async fn white<K: Connector, C: Camera>(
+    rig: &mut Rig<K>,
+    camera: &mut C,
+    geometry: &RigGeometry,
+    base: Calibration,
+    albedo: f32,
+    settings: &CameraSettings,
+    e_per_dn: f32,
+    rep: &mut Reporter,
+) -> Result<Calibration> {
+    rep.stage("calibrate", format!("white scan of a reference of albedo {albedo}"));
+    camera.configure(settings).await?;
+    let plan = CapturePlan {
+        steps: 48,
+        first_mm: geometry.gantry.travel_min_mm,
+        last_mm: geometry.gantry.travel_max_mm,
+        leds: (0..geometry.bar.n_leds).collect(),
+        exposures_us: vec![settings.exposure_us],
+        gain: settings.gain,
+        dark_frames: 0,
+    };
+    plan.validate(geometry)?;
+    // Solve relative to a nominal calibration: unit LEDs, no flat field,
+    // Lambertian profile, the dark scan's black level.
+    let nominal = Calibration {
+        led_scale: vec![1.0; geometry.bar.n_leds as usize],
+        profile_exponent: 1.0,
+        flat_field: Vec::new(),
+        flat_field_grid: None,
+        ..base.clone()
+    };
+    let inputs = FitInputs {
+        geometry: geometry.clone(),
+        plan: plan.clone(),
+        calibration: nominal.clone(),
+        grid: PointGrid { cols: 24, rows: 24 },
+        e_per_dn,
+        bit_depth: 12,
+    };
+    let ctx = FitContext::new(inputs);
+    let mut acc = fit::calibrate::WhiteAccumulator::new(&ctx, albedo);
+    let shots = plan.shots();
+    let total = shots.len() as u64;
+    let started = std::time::Instant::now();
+    let mut at = None;
+    for (k, s) in shots.iter().enumerate() {
+        if at != Some(s.position_um) {
+            rig.all_off().await?;
+            rig.move_to(s.position_um).await?;
+            at = Some(s.position_um);
+        }
+        let lit = rig.led_on(s.led).await?;
+        let f = camera.frame_after(clock::to_mono(lit), Duration::from_secs(5)).await?;
+        tokio::task::block_in_place(|| acc.push_shot(s, &f));
+        let done = k as u64 + 1;
+        let rate = done as f64 / started.elapsed().as_secs_f64().max(1e-9);
+        rep.emit(Event::Frames { done, total, rate_hz: rate, eta_s: (total - done) as f64 / rate.max(1e-9) });
+    }
+    rig.all_off().await?;
+    let solved = tokio::task::block_in_place(|| acc.solve(&nominal, paths::utc_stamp()))
+        .context("the white scan had too few usable samples (is the reference in place and lit?)")?;
+    rep.stage(
+        "calibrate",
+        format!(
+            "LED intensities spread {:.1}%, emission profile cos^{:.2}, fit residual {:.1}%",
+            100.0 * spread(&solved.led_scale),
+            solved.profile_exponent,
+            100.0 * solved.residual_rms
+        ),
+    );
+    Ok(solved)
+}
+
+fn spread(v: &[f32]) -> f32 {
+    let m = v.iter().sum::<f32>() / v.len().max(1) as f32;
+    (v.iter().map(|x| (x - m).powi(2)).sum::<f32>() / v.len().max(1) as f32).sqrt() / m.max(1e-30)
+}

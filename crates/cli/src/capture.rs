@@ -1,0 +1,563 @@
+//! The capture job: everything `capture --sample NAME --out DIR` does, shared
+//! by the operator's command (in-process) and the daemon.
+//!
+//! 1. Resolve the rig, the quality preset, the sample and the calibration
+//!    (on the simulated rig a missing calibration is made first; on
+//!    hardware the operator is told to run the dark and white scans).
+//! 2. Create the capture directory (or reopen it with `--resume`, verifying
+//!    every stored frame) and start the fitter thread; stored frames of a
+//!    resumed capture are replayed into it.
+//! 3. Home, take the dark frames, then every shot of the plan through the
+//!    confirming sequencer (`rig::sequence`): each confirmed frame is
+//!    written to disk and streamed to the fitter as it arrives.
+//! 4. Ctrl-C or SIGTERM e-stops the rig (LEDs off, motion stopped) and keeps
+//!    everything stored; `--resume DIR` continues.
+//! 5. Fit, write `material/`, renders and `report.json`.
+
+use std::collections::HashSet;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, anyhow, bail};
+use frame::Frame;
+use material::SvBrdf;
+use rig::camera::{Camera, CameraError, CameraSettings};
+use rig::clock;
+use rig::mcu::{Connector, Rig, RigError};
+use rig::sequence::{self, Exposer, Shot};
+use serde::{Deserialize, Serialize};
+use setup::{Calibration, CapturePlan, PlannedShot, PointGrid, RigGeometry};
+use sim::FaultSpec;
+use store::{CaptureDir, CaptureInfo, CaptureStatus, FrameKind, SensorInfo, SimInfo};
+use tokio::sync::watch;
+
+use crate::calib::{self, CalibrationStore};
+use crate::fitjob::{FitJob, FrameMsg};
+use crate::output;
+use crate::presets::{self, Overrides, Quality};
+use crate::progress::{Event, Reporter};
+use crate::report::{self, Report};
+use crate::rigfile::{RigFile, RigKind};
+use crate::session;
+
+/// What to capture (also the daemon's job request).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct CaptureRequest {
+    pub sample: Option<String>,
+    pub out: Option<PathBuf>,
+    pub resume: Option<PathBuf>,
+    pub quality: Option<String>,
+    #[serde(default)]
+    pub overrides: Overrides,
+    pub rig_file: Option<PathBuf>,
+    pub sim_material: Option<PathBuf>,
+    #[serde(default)]
+    pub sim_faults: String,
+    pub calib_dir: Option<PathBuf>,
+    /// Capture only, no fit.
+    #[serde(default)]
+    pub no_fit: bool,
+    /// Stop after this many shots (tests and demonstrations of resume).
+    pub stop_after: Option<u64>,
+}
+
+/// An operator's interruption (exit code 130): Ctrl-C, SIGTERM, a
+/// cancelled daemon job, or `--stop-after`.
+#[derive(Debug)]
+pub struct Interrupted;
+
+impl std::fmt::Display for Interrupted {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("interrupted; everything captured so far is kept (continue with capture --resume)")
+    }
+}
+
+impl std::error::Error for Interrupted {}
+
+/// The simulated sample: a built-in material or a stored one.
+pub fn sim_material(name: &str, dir: Option<&Path>) -> Result<Arc<dyn SvBrdf>> {
+    if let Some(d) = dir {
+        let m = material::read(d).with_context(|| format!("--sim-material {}", d.display()))?;
+        let choice = if m.ndf.is_some() { material::ModelChoice::Tabulated } else { material::ModelChoice::Partial };
+        let view = material::MaterialView::new(Arc::new(m), choice)
+            .ok_or_else(|| anyhow!("{} has no NDF tables to render", d.display()))?;
+        return Ok(Arc::new(view));
+    }
+    sim::materials::builtin(name).ok_or_else(|| {
+        anyhow!(
+            "unknown sample '{name}': the simulated rig knows {} (or use --sim-material DIR)",
+            sim::materials::builtin_names()
+        )
+    })
+}
+
+pub fn camera_settings(g: &RigGeometry, exposure_us: u32, gain: f32, fps: f32) -> CameraSettings {
+    CameraSettings { width: g.camera.width, height: g.camera.height, exposure_us, gain, fps, settle_frames: 2 }
+}
+
+fn quality(req: &CaptureRequest) -> Result<Quality> {
+    let name = req.quality.as_deref().unwrap_or("balanced");
+    let q = presets::preset(name)
+        .ok_or_else(|| anyhow!("unknown quality '{name}': use one of {}", presets::PRESETS.join(", ")))?;
+    q.apply(&req.overrides)
+}
+
+/// The plan a quality preset asks for on a rig.
+pub fn plan_for(q: &Quality, g: &RigGeometry) -> Result<CapturePlan> {
+    let plan = CapturePlan {
+        steps: q.steps,
+        first_mm: g.gantry.travel_min_mm,
+        last_mm: g.gantry.travel_max_mm,
+        leds: (0..g.bar.n_leds).step_by(q.led_stride as usize).collect(),
+        exposures_us: q.exposures_us.clone(),
+        gain: 1.0,
+        dark_frames: q.dark_frames,
+    };
+    plan.validate(g)?;
+    Ok(plan)
+}
+
+/// Geometry of a rig, with the preset's simulated camera resolution.
+pub fn geometry_for(rf: &RigFile, q: &Quality) -> RigGeometry {
+    let mut g = rf.geometry();
+    if rf.kind == RigKind::Sim {
+        g.camera.width = q.sim_camera_px;
+        g.camera.height = q.sim_camera_px;
+    }
+    g
+}
+
+/// Find the calibration to use; on the simulated rig, make one if missing.
+async fn calibration_for(
+    rf: &RigFile,
+    geometry: &RigGeometry,
+    store: &CalibrationStore,
+    rep: &mut Reporter,
+) -> Result<(Calibration, String)> {
+    if let Some((path, c)) = store.newest()? {
+        if c.led_scale.len() == geometry.bar.n_leds as usize && !c.flat_field.is_empty() {
+            return Ok((c, path.display().to_string()));
+        }
+    }
+    if rf.kind == RigKind::Hardware {
+        bail!(
+            "no calibration for rig '{}' in {}: place the lens cap and run `capture --calibrate dark`, then place the \
+             white reference and run `capture --calibrate white`",
+            rf.name,
+            store.dir().display()
+        );
+    }
+    rep.stage("calibrate", "no calibration of the simulated rig yet: running the dark and white scans first");
+    let c = calibrate_sim(rf, geometry, store, rep, true).await?;
+    let path = store.dir().join(format!("{}.json", c.id));
+    Ok((c, path.display().to_string()))
+}
+
+/// Run the dark scan and (if `white`) the white scan on the simulated rig
+/// and store the result.
+pub async fn calibrate_sim(
+    rf: &RigFile,
+    geometry: &RigGeometry,
+    store: &CalibrationStore,
+    rep: &mut Reporter,
+    white: bool,
+) -> Result<Calibration> {
+    let reference = sim_material("white", None)?;
+    let mut s = session::open_sim(rf, geometry, reference, &FaultSpec::none()).await?;
+    let cs = camera_settings(geometry, 20_000, 1.0, rf.sim.fps);
+    let base = match store.newest()? {
+        Some((_, c)) if c.led_scale.len() == geometry.bar.n_leds as usize => c,
+        _ => Calibration::nominal(geometry.bar.n_leds, 1.0, 0.0),
+    };
+    let result = async {
+        s.rig.home().await?;
+        let dark = calib::dark(&mut s.rig, &mut s.camera, base, &cs, rep).await?;
+        let c = if white {
+            calib::white(&mut s.rig, &mut s.camera, geometry, dark, rf.white_reference_albedo, &cs, s.e_per_dn, rep)
+                .await?
+        } else {
+            dark
+        };
+        anyhow::Ok(c)
+    }
+    .await;
+    s.rig.shutdown().await;
+    let _ = s.mcu.stop().await;
+    let c = result?;
+    let path = store.save(&c)?;
+    rep.stage("calibrate", format!("saved {}", path.display()));
+    Ok(c)
+}
+
+struct Shooter<'a, C: Camera> {
+    camera: &'a mut C,
+    store: &'a mut CaptureDir,
+    fit: Option<&'a FitJob>,
+    shots: &'a [PlannedShot],
+    plan: &'a CapturePlan,
+    exposure: Option<u8>,
+    rep: &'a mut Reporter,
+    done: u64,
+    total: u64,
+    started: Instant,
+    stop_after: Option<u64>,
+    taken: u64,
+    led_max_on: Duration,
+    discarded: u64,
+}
+
+/// A camera that does not deliver is asked again this many times.
+const FRAME_RETRIES: u32 = 3;
+/// How long a camera that disappeared may take to come back.
+const CAMERA_RETURN: Duration = Duration::from_secs(10);
+
+impl<C: Camera> Shooter<'_, C> {
+    async fn frame(&mut self, after: tokio::time::Instant, exposure_us: u32) -> Result<Frame> {
+        let timeout = Duration::from_micros(exposure_us as u64) + Duration::from_secs(2);
+        let mut tries = 0;
+        let gone_since = Instant::now();
+        loop {
+            match self.camera.frame_after(clock::to_mono(after), timeout).await {
+                Ok(f) => return Ok(f),
+                Err(CameraError::Timeout { waited_ms }) if tries < FRAME_RETRIES => {
+                    tries += 1;
+                    self.rep.warn(format!(
+                        "no frame within {waited_ms} ms; asking the camera again ({tries}/{FRAME_RETRIES})"
+                    ));
+                }
+                Err(CameraError::Gone(why)) if gone_since.elapsed() < CAMERA_RETURN => {
+                    self.rep.warn(format!("the camera disappeared ({why}); waiting for it to come back"));
+                    tokio::time::sleep(Duration::from_millis(200)).await;
+                }
+                Err(e) => return Err(e.into()),
+            }
+        }
+    }
+}
+
+impl<C: Camera> Exposer for Shooter<'_, C> {
+    type Item = (Frame, tokio::time::Instant);
+    type Error = anyhow::Error;
+
+    async fn expose(&mut self, shot: &Shot, lit_at: tokio::time::Instant) -> Result<Self::Item> {
+        if self.stop_after.is_some_and(|n| self.taken >= n) {
+            return Err(Interrupted.into());
+        }
+        let ps = self.shots[shot.index as usize];
+        let exposure_us = self.plan.exposures_us[ps.exposure as usize];
+        if self.exposure != Some(ps.exposure) {
+            self.camera.set_exposure(exposure_us, self.plan.gain).await?;
+            self.exposure = Some(ps.exposure);
+        }
+        let f = self.frame(lit_at, exposure_us).await?;
+        let deadline = clock::to_mono(lit_at + self.led_max_on);
+        if f.meta.exposure_end > deadline {
+            bail!(
+                "the exposure ({exposure_us} us) outlasts the LEDs' maximum on-time ({} ms); shorten the exposure",
+                self.led_max_on.as_millis()
+            );
+        }
+        self.taken += 1;
+        Ok((f, lit_at))
+    }
+
+    async fn commit(&mut self, shot: &Shot, item: Self::Item) -> Result<()> {
+        let ps = self.shots[shot.index as usize];
+        let (frame, lit_at) = item;
+        let kind = FrameKind::Shot {
+            index: ps.index,
+            step: ps.step,
+            led: ps.led,
+            exposure: ps.exposure,
+            position_um: ps.position_um,
+        };
+        tokio::task::block_in_place(|| self.store.write_frame(kind, &frame, Some(clock::to_mono(lit_at))))?;
+        if let Some(fit) = self.fit {
+            fit.send(FrameMsg::Shot { shot: ps, frame })?;
+        }
+        self.done += 1;
+        let rate = self.done as f64 / self.started.elapsed().as_secs_f64().max(1e-9);
+        let left = self.total.saturating_sub(self.done) as f64;
+        self.rep.emit(Event::Frames {
+            done: self.done,
+            total: self.total,
+            rate_hz: rate,
+            eta_s: left / rate.max(1e-9),
+        });
+        Ok(())
+    }
+
+    fn discarded(&mut self, shot: &Shot) {
+        self.discarded += 1;
+        self.rep.warn(format!("retaking step {} LED {}: the rig recovered while it was exposed", shot.step, shot.led));
+    }
+}
+
+/// What a finished capture produced.
+#[derive(Clone, Debug, Serialize)]
+pub struct Summary {
+    pub dir: PathBuf,
+    pub material: Option<PathBuf>,
+    pub report: Report,
+}
+
+/// Run a capture request to the end (or to an interruption).
+pub async fn run(req: CaptureRequest, rep: &mut Reporter, cancel: watch::Receiver<bool>) -> Result<Summary> {
+    let started = Instant::now();
+    let (rf, rig_source) = RigFile::load(req.rig_file.as_deref())?;
+    let faults = FaultSpec::parse(&req.sim_faults).map_err(|e| anyhow!("--sim-faults: {e}"))?;
+    let resume = req.resume.is_some();
+    // Everything about the capture comes from the request, or from
+    // capture.json when resuming.
+    let (root, info, q, done) = if let Some(dir) = &req.resume {
+        let (cd, state) = CaptureDir::resume(dir)?;
+        if cd.info().status == CaptureStatus::Complete && !state.damaged.is_empty() {
+            rep.warn("the capture was complete but some frames were damaged; retaking them");
+        }
+        for d in &state.damaged {
+            rep.warn(format!("dropped damaged frame {d} (it will be taken again)"));
+        }
+        let q: Quality = serde_json::from_value(cd.info().settings.clone())
+            .with_context(|| format!("{}: capture.json does not record its quality settings", dir.display()))?;
+        let info = cd.info().clone();
+        let done: HashSet<u32> = state.done_shots;
+        rep.stage("resume", format!("{} of {} shots already stored and verified", done.len(), info.plan.shots().len()));
+        (Some(cd), info, q, done)
+    } else {
+        let q = quality(&req)?;
+        let sample = req.sample.clone().ok_or_else(|| anyhow!("name the sample with --sample NAME"))?;
+        let out = req.out.clone().ok_or_else(|| anyhow!("choose the capture directory with --out DIR"))?;
+        if out.join(CaptureDir::INFO).exists() {
+            let other = CaptureDir::read_info(&out)?;
+            bail!(
+                "{} already holds a capture of '{}' made {}; choose another --out, or continue it with --resume {}",
+                out.display(),
+                other.sample,
+                other.created_utc,
+                out.display()
+            );
+        }
+        if rf.kind == RigKind::Sim {
+            sim_material(&sample, req.sim_material.as_deref())?;
+        }
+        let geometry = geometry_for(&rf, &q);
+        let plan = plan_for(&q, &geometry)?;
+        let info = CaptureInfo {
+            format_version: store::CAPTURE_FORMAT_VERSION,
+            sample: sample.clone(),
+            created_utc: crate::paths::utc_stamp(),
+            status: CaptureStatus::InProgress,
+            geometry,
+            plan,
+            calibration: Calibration::nominal(40, 1.0, 0.0),
+            calibration_source: None,
+            sensor: SensorInfo { bit_depth: 12, e_per_dn: 1.0 },
+            camera: serde_json::Value::Null,
+            grid: PointGrid { cols: q.grid, rows: q.grid },
+            settings: serde_json::to_value(&q)?,
+            simulated: (rf.kind == RigKind::Sim).then(|| SimInfo {
+                material: req.sim_material.is_none().then(|| sample.clone()),
+                material_dir: req.sim_material.as_ref().map(|p| p.display().to_string()),
+                faults: req.sim_faults.clone(),
+                seed: rf.sim.seed,
+            }),
+        };
+        let _ = out;
+        (None, info, q, HashSet::new())
+    };
+    let geometry = info.geometry.clone();
+    let cal_store = CalibrationStore::new(req.calib_dir.as_deref(), &rf.name);
+    let (calibration, cal_source) = if resume {
+        (info.calibration.clone(), info.calibration_source.clone().unwrap_or_default())
+    } else {
+        calibration_for(&rf, &geometry, &cal_store, rep).await?
+    };
+    if rf.kind == RigKind::Hardware {
+        bail!(
+            "the hardware capture path needs the V4L2 camera backend, which this build does not include yet; \
+             use the simulated rig (no --rig, or a rig file with kind = \"sim\")"
+        );
+    }
+    let sample = info.sample.clone();
+    let material = match &info.simulated {
+        Some(s) => sim_material(s.material.as_deref().unwrap_or(&sample), s.material_dir.as_deref().map(Path::new))?,
+        None => bail!("this capture was made on hardware; resume it with the same hardware rig"),
+    };
+    let faults = if resume {
+        FaultSpec::parse(info.simulated.as_ref().map_or("", |s| s.faults.as_str())).unwrap_or(faults)
+    } else {
+        faults
+    };
+    rep.stage("rig", format!("{} ({rig_source}); sample '{sample}', quality {}", rf.name, q.name));
+    let mut s = session::open_sim(&rf, &geometry, material, &faults).await?;
+    let mut info = info;
+    info.calibration = calibration.clone();
+    info.calibration_source = Some(cal_source.clone());
+    info.sensor = SensorInfo { bit_depth: 12, e_per_dn: s.e_per_dn };
+    let cs = camera_settings(&geometry, info.plan.exposures_us[0], info.plan.gain, rf.sim.fps);
+    let applied = s.camera.configure(&cs).await?;
+    let mut cd = match root {
+        Some(cd) => cd,
+        None => {
+            let out = req.out.clone().unwrap_or_default();
+            CaptureDir::create(&out, info.clone())?
+        }
+    };
+    cd.set_camera(serde_json::to_value(&applied)?)?;
+    cd.set_status(CaptureStatus::InProgress)?;
+    let root = cd.root().to_path_buf();
+    rep.stage("capture", format!("writing to {}", root.display()));
+
+    let fit_inputs = fit::FitInputs {
+        geometry: geometry.clone(),
+        plan: info.plan.clone(),
+        calibration: calibration.clone(),
+        grid: info.grid,
+        e_per_dn: s.e_per_dn,
+        bit_depth: 12,
+    };
+    let job = (!req.no_fit).then(|| FitJob::start(fit_inputs, q.fit.clone()));
+    if let Some(job) = &job {
+        if resume {
+            let n = tokio::task::block_in_place(|| crate::fitjob::replay(&root, cd.entries(), job))?;
+            rep.stage("fit", format!("replayed {n} stored frames into the fitter"));
+        }
+    }
+
+    let mut report = Report {
+        sample: sample.clone(),
+        quality: q.name.clone(),
+        rig: rf.name.clone(),
+        calibration: cal_source,
+        simulated: true,
+        ..Report::default()
+    };
+    let capture_started = Instant::now();
+    let outcome =
+        capture_frames(&mut s.rig, &mut s.camera, &mut cd, job.as_ref(), &done, rep, req.stop_after, cancel).await;
+    s.rig.shutdown().await;
+    report.time("capture_s", capture_started.elapsed().as_secs_f64());
+    let link = s.rig.link_stats();
+    report.link = serde_json::json!({
+        "commands": link.commands,
+        "retransmits": link.retransmits,
+        "stale_replies": link.stale_replies,
+        "bad_frames": link.bad_frames,
+        "mean_rtt_us": link.mean_rtt().map(|d| d.as_secs_f64() * 1e6),
+    });
+    report.recoveries = s.rig.recoveries().iter().map(|r| format!("{r:?}")).collect();
+    let _ = s.mcu.stop().await;
+    let stats = match outcome {
+        Ok(stats) => stats,
+        Err(e) => {
+            let _ = cd.set_status(CaptureStatus::Interrupted);
+            drop(job);
+            return Err(e);
+        }
+    };
+    cd.set_status(CaptureStatus::Complete)?;
+    cd.sync()?;
+    report.frames = serde_json::json!({ "committed": stats.committed, "retakes": stats.retakes, "moves": stats.moves });
+    rep.stage(
+        "capture",
+        format!("{} frames stored in {:.1} s", cd.entries().len(), capture_started.elapsed().as_secs_f64()),
+    );
+
+    let material_dir = match job {
+        Some(job) => Some(output::finish_fit(job, &info, &q, &root, rep, &mut report).await?),
+        None => None,
+    };
+    report.time("total_s", started.elapsed().as_secs_f64());
+    report.peak_memory_mb = report::peak_memory_mb();
+    report.material = material_dir.as_ref().map(|p| p.display().to_string());
+    output::write_report(&root, &report)?;
+    rep.emit(Event::Done { summary: serde_json::to_value(&report)? });
+    Ok(Summary { dir: root, material: material_dir, report })
+}
+
+/// Dark frames, then every shot not yet stored.
+#[allow(clippy::too_many_arguments)]
+async fn capture_frames<K: Connector, C: Camera>(
+    rig: &mut Rig<K>,
+    camera: &mut C,
+    cd: &mut CaptureDir,
+    job: Option<&FitJob>,
+    done: &HashSet<u32>,
+    rep: &mut Reporter,
+    stop_after: Option<u64>,
+    mut cancel: watch::Receiver<bool>,
+) -> Result<sequence::SequenceStats> {
+    let plan = cd.info().plan.clone();
+    let work = async {
+        rep.stage("rig", "homing");
+        rig.home().await?;
+        // Dark frames per exposure, all LEDs off.
+        let have: HashSet<FrameKind> = cd.entries().iter().map(|e| e.frame).collect();
+        for (e, &us) in plan.exposures_us.iter().enumerate() {
+            let missing: Vec<u32> =
+                (0..plan.dark_frames).filter(|&n| !have.contains(&FrameKind::Dark { exposure: e as u8, n })).collect();
+            if missing.is_empty() {
+                continue;
+            }
+            camera.set_exposure(us, plan.gain).await?;
+            rig.all_off().await?;
+            let off_at = tokio::time::Instant::now();
+            for n in missing {
+                let f = camera.frame_after(clock::to_mono(off_at), Duration::from_secs(5)).await?;
+                tokio::task::block_in_place(|| cd.write_frame(FrameKind::Dark { exposure: e as u8, n }, &f, None))?;
+                if let Some(job) = job {
+                    job.send(FrameMsg::Dark { exposure: e as u8, frame: f })?;
+                }
+                rig.keepalive().await?;
+            }
+        }
+        let shots = plan.shots();
+        let todo: Vec<Shot> = shots
+            .iter()
+            .filter(|s| !done.contains(&s.index))
+            .map(|s| Shot { index: s.index, step: s.step, led: s.led, position_um: s.position_um })
+            .collect();
+        rep.stage("capture", format!("{} shots to take", todo.len()));
+        let led_max_on = Duration::from_millis(rig.settings().led_max_on_ms as u64);
+        let mut shooter = Shooter {
+            camera,
+            store: cd,
+            fit: job,
+            shots: &shots,
+            plan: &plan,
+            exposure: None,
+            rep,
+            done: done.len() as u64,
+            total: shots.len() as u64,
+            started: Instant::now(),
+            stop_after,
+            taken: 0,
+            led_max_on,
+            discarded: 0,
+        };
+        let stats = sequence::run(rig, &todo, &mut shooter).await?;
+        anyhow::Ok(stats)
+    };
+    let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())
+        .context("cannot watch for SIGTERM")?;
+    let r = tokio::select! {
+        r = work => r,
+        _ = tokio::signal::ctrl_c() => Err(anyhow!(Interrupted)),
+        _ = term.recv() => Err(anyhow!(Interrupted)),
+        _ = cancel.wait_for(|c| *c) => Err(anyhow!(Interrupted)),
+    };
+    if let Err(e) = &r {
+        if e.downcast_ref::<Interrupted>().is_some() {
+            // Operator's stop: e-stop (motion stops, LEDs off); the next
+            // connection clears it.
+            if let Err(x) = rig.estop().await {
+                tracing::warn!(error = %x, "e-stop did not reach the rig; its watchdog will switch the LEDs off");
+            }
+        }
+        if let Some(RigError::EStopped) = e.downcast_ref::<RigError>() {
+            tracing::error!("the rig was e-stopped during the capture");
+        }
+    }
+    r
+}

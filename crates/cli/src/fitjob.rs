@@ -1,0 +1,138 @@
+//! The fit, run beside the capture: frames stream into a fitter thread as
+//! they are stored, so only the per-point stage remains after the last
+//! frame. `refl fit DIR` replays a stored capture through the same code.
+
+use std::sync::mpsc::{Receiver, SyncSender, sync_channel};
+use std::thread::JoinHandle;
+use std::time::Instant;
+
+use anyhow::{Context, Result, anyhow};
+use brdf::ndf::MaskingOperator;
+use fit::samples::Census;
+use fit::{FitContext, FitInputs, FitSettings, Ingest, PointMaps};
+use frame::Frame;
+use serde::Serialize;
+use setup::PlannedShot;
+
+/// A frame on its way to the fitter.
+#[derive(Debug)]
+pub enum FrameMsg {
+    Dark { exposure: u8, frame: Frame },
+    Shot { shot: PlannedShot, frame: Frame },
+}
+
+/// Wall time of each fitting stage, seconds.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct FitTimings {
+    /// Ingesting frames (overlaps the capture when streaming).
+    pub ingest_s: f64,
+    /// From the last frame to the end of the per-point stage.
+    pub points_s: f64,
+    pub synthesis_s: f64,
+    pub analytic_s: f64,
+    pub selection_s: f64,
+}
+
+#[derive(Debug)]
+pub struct FitOutcome {
+    pub ctx: FitContext,
+    pub maps: PointMaps,
+    pub census: Census,
+    pub sample_bytes: usize,
+    pub frames: u64,
+    pub timings: FitTimings,
+    pub settings: FitSettings,
+}
+
+/// A fitter thread fed through a bounded channel (back-pressure: a capture
+/// never runs more than 32 frames ahead of the fitter).
+#[derive(Debug)]
+pub struct FitJob {
+    tx: Option<SyncSender<FrameMsg>>,
+    handle: Option<JoinHandle<Result<FitOutcome>>>,
+}
+
+impl FitJob {
+    pub fn start(inputs: FitInputs, settings: FitSettings) -> Self {
+        let (tx, rx) = sync_channel::<FrameMsg>(32);
+        let handle = std::thread::Builder::new()
+            .name("fitter".into())
+            .spawn(move || run(inputs, settings, rx))
+            .map_err(|e| anyhow!("cannot start the fitter thread: {e}"));
+        match handle {
+            Ok(h) => Self { tx: Some(tx), handle: Some(h) },
+            Err(e) => {
+                tracing::error!("{e}");
+                Self { tx: None, handle: None }
+            }
+        }
+    }
+
+    pub fn send(&self, msg: FrameMsg) -> Result<()> {
+        self.tx
+            .as_ref()
+            .ok_or_else(|| anyhow!("the fitter is not running"))?
+            .send(msg)
+            .map_err(|_| anyhow!("the fitter stopped"))
+    }
+
+    /// No more frames: wait for the fit.
+    pub fn finish(mut self) -> Result<FitOutcome> {
+        drop(self.tx.take());
+        let h = self.handle.take().ok_or_else(|| anyhow!("the fitter is not running"))?;
+        h.join().map_err(|_| anyhow!("the fitter thread panicked"))?
+    }
+}
+
+fn run(inputs: FitInputs, settings: FitSettings, rx: Receiver<FrameMsg>) -> Result<FitOutcome> {
+    let ctx = FitContext::new(inputs);
+    let t0 = Instant::now();
+    let mut ingest_s = 0.0;
+    let mut ingest = Ingest::new(&ctx);
+    let mut last_frame = Instant::now();
+    for msg in rx {
+        let t = Instant::now();
+        match msg {
+            FrameMsg::Dark { exposure, frame } => ingest.push_dark(exposure, &frame),
+            FrameMsg::Shot { shot, frame } => ingest.push_shot(&shot, &frame),
+        }
+        ingest_s += t.elapsed().as_secs_f64();
+        last_frame = Instant::now();
+    }
+    let _ = t0;
+    let frames = ingest.frames;
+    let store = ingest.finish();
+    let census = store.census();
+    let sample_bytes = store.bytes();
+    let op = MaskingOperator::new(settings.grid);
+    let maps = fit::fit_points(&ctx, &store, &settings, &op);
+    let points_s = last_frame.elapsed().as_secs_f64();
+    drop(store);
+    Ok(FitOutcome {
+        ctx,
+        maps,
+        census,
+        sample_bytes,
+        frames,
+        timings: FitTimings { ingest_s, points_s, ..FitTimings::default() },
+        settings,
+    })
+}
+
+/// Replay a stored capture's frames into a fit job (manifest order: dark
+/// frames were stored before the shots of their exposure).
+pub fn replay(root: &std::path::Path, entries: &[store::ManifestEntry], job: &FitJob) -> Result<u64> {
+    let mut n = 0;
+    for e in entries {
+        let frame = store::CaptureDir::read_frame(root, e).with_context(|| format!("reading {}", e.file))?;
+        let msg = match e.frame {
+            store::FrameKind::Dark { exposure, .. } => FrameMsg::Dark { exposure, frame },
+            store::FrameKind::Shot { index, step, led, exposure, position_um } => {
+                FrameMsg::Shot { shot: PlannedShot { index, step, led, exposure, position_um }, frame }
+            }
+        };
+        job.send(msg)?;
+        n += 1;
+    }
+    Ok(n)
+}

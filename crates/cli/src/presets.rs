@@ -1,0 +1,142 @@
+//! Quality presets: the speed/accuracy trade of a capture and its fit, as
+//! named sets of knobs that the operator can override one by one.
+//!
+//! | knob | fast | balanced | best |
+//! |---|---|---|---|
+//! | gantry steps | 32 | 64 | 64 |
+//! | LEDs used | every other (20) | all 40 | all 40 |
+//! | exposures (HDR brackets) | 1 | 1 | 2 (x1, x1/8) |
+//! | sample points (per side) | 48 | 96 | 128 |
+//! | simulated camera (pixels per side) | 128 | 224 | 320 |
+//! | NDF table | 16 x 48 | 32 x 96 | 32 x 96 |
+//! | masking iterations (max) | 2 | 4 | 6 |
+//! | synthesis clusters | 32 | 96 | 192 |
+//! | synthesis descriptor length | 16 | 32 | 32 |
+//! | synthesis rotation angles | 48 | 96 | 384 |
+//! | analytic fits | Ward iso/aniso | all eight | all eight |
+//!
+//! The figures behind these choices are in `refl tradeoff` (see the README).
+
+use brdf::ndf::NdfGrid;
+use brdf::params::AnalyticModel;
+use fit::FitSettings;
+use serde::{Deserialize, Serialize};
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Quality {
+    pub name: String,
+    pub steps: u32,
+    pub led_stride: u8,
+    pub exposures_us: Vec<u32>,
+    pub dark_frames: u32,
+    pub grid: u32,
+    pub sim_camera_px: u32,
+    pub fit: FitSettings,
+    pub synth_clusters: u32,
+    pub synth_descriptor: u32,
+    pub synth_rotations: u32,
+    pub analytic: Vec<AnalyticModel>,
+}
+
+pub const PRESETS: [&str; 3] = ["fast", "balanced", "best"];
+
+/// The named preset, or `None`.
+pub fn preset(name: &str) -> Option<Quality> {
+    let all = AnalyticModel::ALL.to_vec();
+    let q = match name {
+        "fast" => Quality {
+            name: name.into(),
+            steps: 32,
+            led_stride: 2,
+            exposures_us: vec![20_000],
+            dark_frames: 4,
+            grid: 48,
+            sim_camera_px: 128,
+            fit: FitSettings {
+                grid: NdfGrid { n_theta: 16, n_phi: 48 },
+                max_masking_iterations: 2,
+                ..FitSettings::default()
+            },
+            synth_clusters: 32,
+            synth_descriptor: 16,
+            synth_rotations: 48,
+            analytic: vec![AnalyticModel::WardIso, AnalyticModel::WardAniso],
+        },
+        "balanced" => Quality {
+            name: name.into(),
+            steps: 64,
+            led_stride: 1,
+            exposures_us: vec![20_000],
+            dark_frames: 8,
+            grid: 96,
+            sim_camera_px: 224,
+            fit: FitSettings::default(),
+            synth_clusters: 96,
+            synth_descriptor: 32,
+            synth_rotations: 96,
+            analytic: all,
+        },
+        "best" => Quality {
+            name: name.into(),
+            steps: 64,
+            led_stride: 1,
+            exposures_us: vec![20_000, 2_500],
+            dark_frames: 8,
+            grid: 128,
+            sim_camera_px: 320,
+            fit: FitSettings { max_masking_iterations: 6, masking_tolerance: 1e-3, ..FitSettings::default() },
+            synth_clusters: 192,
+            synth_descriptor: 32,
+            synth_rotations: 384,
+            analytic: all,
+        },
+        _ => return None,
+    };
+    Some(q)
+}
+
+/// Individual overrides of a preset's knobs (each `None` keeps the preset).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Overrides {
+    pub steps: Option<u32>,
+    pub led_stride: Option<u8>,
+    pub hdr: Option<u32>,
+    pub grid: Option<u32>,
+    pub camera_px: Option<u32>,
+    pub ndf_theta: Option<u32>,
+    pub clusters: Option<u32>,
+}
+
+impl Quality {
+    pub fn apply(mut self, o: &Overrides) -> anyhow::Result<Self> {
+        if let Some(v) = o.steps {
+            anyhow::ensure!((2..=1000).contains(&v), "--steps {v}: use 2..=1000");
+            self.steps = v;
+        }
+        if let Some(v) = o.led_stride {
+            anyhow::ensure!((1..=20).contains(&v), "--led-stride {v}: use 1..=20");
+            self.led_stride = v;
+        }
+        if let Some(v) = o.hdr {
+            anyhow::ensure!((1..=4).contains(&v), "--hdr {v}: use 1..=4 brackets");
+            self.exposures_us = (0..v).map(|k| 20_000 >> (3 * k)).collect();
+        }
+        if let Some(v) = o.grid {
+            anyhow::ensure!((4..=1024).contains(&v), "--grid {v}: use 4..=1024 points per side");
+            self.grid = v;
+        }
+        if let Some(v) = o.camera_px {
+            anyhow::ensure!((32..=2048).contains(&v), "--camera-px {v}: use 32..=2048");
+            self.sim_camera_px = v;
+        }
+        if let Some(v) = o.ndf_theta {
+            anyhow::ensure!((4..=128).contains(&v), "--ndf-theta {v}: use 4..=128 rings");
+            self.fit.grid = NdfGrid { n_theta: v, n_phi: 3 * v };
+        }
+        if let Some(v) = o.clusters {
+            anyhow::ensure!((1..=100_000).contains(&v), "--clusters {v}: use 1..=100000");
+            self.synth_clusters = v;
+        }
+        Ok(self)
+    }
+}

@@ -1,0 +1,250 @@
+//! Radiometric calibration from a white diffuse reference of known albedo
+//! `a` (see `setup::calibration` for the model).
+//!
+//! With a nominal calibration (`S_q = 1`, `F = 1`, profile exponent `m0`),
+//! each (point, light) sample of the white reference gives
+//! `M = rho_nominal * pi / a = S_q F(x) cos_emit^(m - m0)`.
+//! In logarithms, `ln M = ln S_q + ln F(x) + (m - m0) ln cos_emit`, which
+//! alternating least squares solves exactly (each step is the closed-form
+//! minimiser of one block with the others fixed), with `mean ln F = 0`
+//! fixing the split between LEDs and flat field.
+
+use frame::Frame;
+use rayon::prelude::*;
+use setup::{Calibration, PlannedShot};
+
+use crate::context::FitContext;
+
+/// Iterations of the alternating least squares (the residual stops
+/// changing after about 10 on simulated and real-sized rigs); run twice,
+/// the second time without outliers.
+const ALS_ITERATIONS: usize = 25;
+
+/// Samples whose log residual exceeds this many robust standard deviations
+/// (1.4826 x the median absolute residual) after the first pass are
+/// dropped: pixels at the edge of the bar's shadow or of a speck on the
+/// reference, which a multiplicative model cannot explain.
+const OUTLIER_SIGMAS: f64 = 4.0;
+
+/// Samples with the camera's view this close to the bar's edge are not used
+/// (the pixel footprint straddles the shadow).
+const SHADOW_MARGIN_MM: f32 = 3.0;
+
+/// Collects `ln M` and `ln cos_emit` for every usable white sample.
+#[derive(Debug)]
+pub struct WhiteAccumulator<'a> {
+    ctx: &'a FitContext,
+    albedo: f32,
+    /// `[light][point]`: `(ln M, ln cos_emit)`, NaN where unusable.
+    data: Vec<(f32, f32)>,
+    black: [f32; 3],
+    peak: Vec<f32>,
+}
+
+/// Only samples lit at least this bright (relative to the point's brightest
+/// light) are used: dimmer ones carry shot noise of several per cent and
+/// add nothing the brighter ones do not measure better.
+const MIN_RELATIVE_IRRADIANCE: f32 = 0.1;
+
+impl<'a> WhiteAccumulator<'a> {
+    /// `ctx` must be built with a nominal calibration (unit LED scale, no
+    /// flat field) and the black level of a dark calibration.
+    pub fn new(ctx: &'a FitContext, albedo: f32) -> Self {
+        let n = ctx.n_points() * ctx.n_lights();
+        let peak = (0..ctx.n_points())
+            .into_par_iter()
+            .map(|p| (0..ctx.n_lights()).filter_map(|q| ctx.sample(p, q)).map(|s| s.irradiance).fold(0.0f32, f32::max))
+            .collect();
+        Self { ctx, albedo, data: vec![(f32::NAN, 0.0); n], black: ctx.inputs.calibration.black_level, peak }
+    }
+
+    pub fn push_shot(&mut self, shot: &PlannedShot, f: &Frame) {
+        let ctx = self.ctx;
+        let Some(q) = ctx.inputs.plan.light_index(shot.step, shot.led) else { return };
+        let img = f.to_rgb();
+        let scale = 1.0 / (f.meta.exposure_us.max(1) as f32 * 1e-6 * f.meta.gain.max(1e-6));
+        let k = std::f32::consts::PI / self.albedo;
+        let black = self.black;
+        let peak = &self.peak;
+        let n = ctx.n_points();
+        self.data[q * n..(q + 1) * n].par_iter_mut().enumerate().for_each(|(p, slot)| {
+            let (Some(px), Some(g)) = (ctx.pixels[p], ctx.sample(p, q)) else { return };
+            let geo = &ctx.inputs.geometry;
+            let light = &ctx.lights[q];
+            if g.irradiance < MIN_RELATIVE_IRRADIANCE * peak[p]
+                || geo.bar.occludes(light.bar_x_mm, ctx.positions[p], geo.camera.position_mm, SHADOW_MARGIN_MM)
+            {
+                return;
+            }
+            let Some((v, clipped)) = img.sample(px.x, px.y) else { return };
+            if clipped {
+                return;
+            }
+            let lum = (0..3).map(|c| v[c] - black[c]).sum::<f32>() / 3.0;
+            let m = lum * scale * g.to_rho * k;
+            if m > 0.0 && m.is_finite() {
+                let cos_emit = g.i.z;
+                *slot = (m.ln(), cos_emit.ln());
+            }
+        });
+    }
+
+    /// Solve for LED scales, flat field and profile exponent.
+    pub fn solve(&self, base: &Calibration, id: String) -> Option<Calibration> {
+        let (nq, np) = (self.ctx.n_lights(), self.ctx.n_points());
+        let mut data = self.data.clone();
+        if data.iter().filter(|d| d.0.is_finite()).count() < (nq + np) * 2 {
+            return None;
+        }
+        let mut ls = vec![0.0f64; nq];
+        let mut lf = vec![0.0f64; np];
+        let mut dm = 0.0f64;
+        for pass in 0..2 {
+            als(&data, nq, np, &mut ls, &mut lf, &mut dm);
+            if pass == 0 {
+                let mut abs: Vec<f64> = residuals(&data, nq, np, &ls, &lf, dm).map(|r| r.abs()).collect();
+                let k = abs.len() / 2;
+                let mad = *abs.select_nth_unstable_by(k, |a, b| a.total_cmp(b)).1;
+                let limit = OUTLIER_SIGMAS * 1.4826 * mad.max(1e-6);
+                for q in 0..nq {
+                    for p in 0..np {
+                        let (lm, lc) = data[q * np + p];
+                        if lm.is_finite() && ((lm as f64 - ls[q] - lf[p] - dm * lc as f64).abs() > limit) {
+                            data[q * np + p].0 = f32::NAN;
+                        }
+                    }
+                }
+            }
+        }
+        let (mut ss, mut n) = (0.0f64, 0usize);
+        for r in residuals(&data, nq, np, &ls, &lf, dm) {
+            ss += r * r;
+            n += 1;
+        }
+        // Every step gives an estimate of the same LED: average them.
+        let mut led_scale = base.led_scale.clone();
+        let n_leds = led_scale.len();
+        let mut acc = vec![(0.0f64, 0usize); n_leds];
+        for (q, l) in self.ctx.lights.iter().enumerate() {
+            if (l.led as usize) < n_leds && ls[q] != 0.0 {
+                acc[l.led as usize].0 += ls[q];
+                acc[l.led as usize].1 += 1;
+            }
+        }
+        for (k, (s, c)) in acc.into_iter().enumerate() {
+            if c > 0 {
+                led_scale[k] = (s / c as f64).exp() as f32 * base.led_scale[k];
+            }
+        }
+        Some(Calibration {
+            id,
+            led_scale,
+            profile_exponent: base.profile_exponent + dm as f32,
+            flat_field: lf.iter().map(|v| v.exp() as f32).collect(),
+            flat_field_grid: Some(self.ctx.inputs.grid),
+            reference_albedo: self.albedo,
+            residual_rms: ((ss / n.max(1) as f64).sqrt()) as f32,
+            ..base.clone()
+        })
+    }
+}
+
+/// Black level and read noise per Bayer colour from dark frames.
+pub fn dark_statistics(frames: &[Frame]) -> Option<([f32; 3], [f32; 3])> {
+    let mut sum = [0.0f64; 3];
+    let mut sum2 = [0.0f64; 3];
+    let mut n = [0u64; 3];
+    for f in frames {
+        for y in 0..f.height {
+            for x in 0..f.width {
+                let c = match f.layout {
+                    frame::Layout::Bayer { pattern } => pattern.channel(x, y),
+                    _ => 1,
+                };
+                let v = f.data[(y * f.width + x) as usize] as f64;
+                sum[c] += v;
+                sum2[c] += v * v;
+                n[c] += 1;
+            }
+        }
+    }
+    let mut mean = [0.0f32; 3];
+    let mut sd = [0.0f32; 3];
+    for c in 0..3 {
+        if n[c] == 0 {
+            continue;
+        }
+        let m = sum[c] / n[c] as f64;
+        mean[c] = m as f32;
+        sd[c] = (sum2[c] / n[c] as f64 - m * m).max(0.0).sqrt() as f32;
+    }
+    // Mono sensors fill only the green slot; copy it.
+    if n[0] == 0 && n[2] == 0 {
+        mean = [mean[1]; 3];
+        sd = [sd[1]; 3];
+    }
+    (n.iter().sum::<u64>() > 0).then_some((mean, sd))
+}
+
+fn residuals<'a>(
+    data: &'a [(f32, f32)],
+    nq: usize,
+    np: usize,
+    ls: &'a [f64],
+    lf: &'a [f64],
+    dm: f64,
+) -> impl Iterator<Item = f64> + 'a {
+    (0..nq * np).filter_map(move |k| {
+        let (q, p) = (k / np, k % np);
+        let (lm, lc) = data[k];
+        lm.is_finite().then(|| lm as f64 - ls[q] - lf[p] - dm * lc as f64)
+    })
+}
+
+/// Alternating least squares for `ln M = ls[q] + lf[p] + dm ln cos_emit`
+/// with `mean lf = 0`.
+fn als(data: &[(f32, f32)], nq: usize, np: usize, ls: &mut [f64], lf: &mut [f64], dm: &mut f64) {
+    for _ in 0..ALS_ITERATIONS {
+        for p in 0..np {
+            let (mut s, mut n) = (0.0, 0usize);
+            for q in 0..nq {
+                let (lm, lc) = data[q * np + p];
+                if lm.is_finite() {
+                    s += lm as f64 - ls[q] - *dm * lc as f64;
+                    n += 1;
+                }
+            }
+            if n > 0 {
+                lf[p] = s / n as f64;
+            }
+        }
+        let mean_f = lf.iter().sum::<f64>() / np as f64;
+        lf.iter_mut().for_each(|v| *v -= mean_f);
+        for q in 0..nq {
+            let (mut s, mut n) = (0.0, 0usize);
+            for p in 0..np {
+                let (lm, lc) = data[q * np + p];
+                if lm.is_finite() {
+                    s += lm as f64 - lf[p] - *dm * lc as f64;
+                    n += 1;
+                }
+            }
+            if n > 0 {
+                ls[q] = s / n as f64;
+            }
+        }
+        let (mut num, mut den) = (0.0, 0.0);
+        for q in 0..nq {
+            for p in 0..np {
+                let (lm, lc) = data[q * np + p];
+                if lm.is_finite() {
+                    num += (lm as f64 - ls[q] - lf[p]) * lc as f64;
+                    den += (lc as f64) * (lc as f64);
+                }
+            }
+        }
+        if den > 0.0 {
+            *dm = num / den;
+        }
+    }
+}

@@ -1,0 +1,383 @@
+//! Reading and writing the material directory (specified in `MATERIAL.md`
+//! at the repository root).
+
+use std::collections::BTreeMap;
+use std::fs;
+use std::path::{Path, PathBuf};
+
+use brdf::ndf::{NdfGrid, TableSet};
+use brdf::params::AnalyticModel;
+use exr::prelude::{
+    AnyChannel, AnyChannels, Encoding, FlatSamples, Image, Layer, LayerAttributes, ReadChannels, ReadLayers, SmallVec,
+    WritableImage, f16,
+};
+use serde::{Deserialize, Serialize};
+use setup::{PointGrid, SampleArea};
+use thiserror::Error;
+
+use crate::data::{Choice, ChoiceMap, Material, ModelMap, NdfKind};
+
+/// Version of the material format.
+pub const MATERIAL_FORMAT_VERSION: u32 = 1;
+
+#[derive(Debug, Error)]
+pub enum MaterialError {
+    #[error("{0} is not a material directory (no material.json)")]
+    NotAMaterial(String),
+    #[error("{path}: {reason}")]
+    Malformed { path: String, reason: String },
+    #[error("{path} is material format version {found}; this program reads version {MATERIAL_FORMAT_VERSION}")]
+    Version { path: String, found: u32 },
+    #[error("{path}: {source}")]
+    Io { path: String, source: std::io::Error },
+}
+
+fn malformed(path: &Path, reason: impl Into<String>) -> MaterialError {
+    MaterialError::Malformed { path: path.display().to_string(), reason: reason.into() }
+}
+
+fn io(path: &Path, source: std::io::Error) -> MaterialError {
+    MaterialError::Io { path: path.display().to_string(), source }
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+struct NdfEntry {
+    file: String,
+    grid: NdfGrid,
+    kind: NdfKind,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+struct ModelEntry {
+    name: String,
+    file: String,
+    params: Vec<String>,
+    fit_seconds: f64,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+struct ChoiceEntry {
+    legend: Vec<String>,
+    isotropic_model: String,
+    anisotropic_model: String,
+}
+
+/// `material.json`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+struct MaterialJson {
+    format_version: u32,
+    name: String,
+    sample: SampleArea,
+    grid: PointGrid,
+    conventions: String,
+    units: String,
+    maps: String,
+    ndf: Option<NdfEntry>,
+    partial_ndf: Option<NdfEntry>,
+    models: Vec<ModelEntry>,
+    choice: Option<ChoiceEntry>,
+    provenance: serde_json::Value,
+}
+
+const CONVENTIONS: &str = "local frame: normal +z, x along the sample's x axis (gantry travel); i toward the light, \
+o toward the viewer; f = kd/pi + ks D(h) F_rel(i.h) / (4 sigma(i) sigma(o)), integral D cos = 1, F_rel(1) = 1 \
+(relative dielectric Fresnel with index eta), sigma(v) = integral max(0, h.v) D(h) dw; NDF tables: ring t of \
+n_theta spans theta = (t/n_theta)^2 pi/2 .. ((t+1)/n_theta)^2 pi/2, sector p spans phi = p 2pi/n_phi ..; map row 0 \
+is the sample's +y edge, column 0 its -x edge";
+
+const UNITS: &str = "kd, ks: albedo (unitless, linear RGB); eta: unitless; D: 1/sr; positions: mm";
+
+fn write_channels(
+    path: &Path,
+    width: usize,
+    height: usize,
+    channels: Vec<(String, FlatSamples)>,
+) -> Result<(), MaterialError> {
+    let list: Vec<AnyChannel<FlatSamples>> =
+        channels.into_iter().map(|(n, s)| AnyChannel::new(n.as_str(), s)).collect();
+    let layer = Layer::new(
+        (width, height),
+        LayerAttributes::default(),
+        Encoding::SMALL_LOSSLESS,
+        AnyChannels::sort(SmallVec::from_vec(list)),
+    );
+    Image::from_layer(layer).write().to_file(path).map_err(|e| malformed(path, format!("writing EXR: {e}")))
+}
+
+fn read_channels(path: &Path) -> Result<(usize, usize, BTreeMap<String, Vec<f32>>), MaterialError> {
+    let img = exr::prelude::read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .all_channels()
+        .first_valid_layer()
+        .all_attributes()
+        .from_file(path)
+        .map_err(|e| malformed(path, format!("not a readable EXR: {e}")))?;
+    let size = img.layer_data.size;
+    let mut out = BTreeMap::new();
+    for ch in &img.layer_data.channel_data.list {
+        out.insert(ch.name.to_string(), ch.sample_data.values_as_f32().collect::<Vec<f32>>());
+    }
+    Ok((size.0, size.1, out))
+}
+
+fn take(path: &Path, ch: &mut BTreeMap<String, Vec<f32>>, name: &str, len: usize) -> Result<Vec<f32>, MaterialError> {
+    let v = ch.remove(name).ok_or_else(|| malformed(path, format!("channel '{name}' is missing")))?;
+    if v.len() != len {
+        return Err(malformed(path, format!("channel '{name}' has {} values, expected {len}", v.len())));
+    }
+    if let Some(bad) = v.iter().position(|x| !x.is_finite()) {
+        return Err(malformed(path, format!("channel '{name}' holds a non-finite value at index {bad}")));
+    }
+    Ok(v)
+}
+
+fn write_tables(path: &Path, t: &TableSet) -> Result<(), MaterialError> {
+    let g = t.grid();
+    let (values, coverage) = t.raw();
+    let cells = g.len();
+    let words = cells.div_ceil(64);
+    let mut observed = Vec::with_capacity(values.len());
+    for k in 0..t.len() {
+        for c in 0..cells {
+            let bit = (coverage[k * words + c / 64] >> (c % 64)) & 1;
+            observed.push(f16::from_f32(bit as f32));
+        }
+    }
+    write_channels(
+        path,
+        g.n_phi as usize,
+        g.n_theta as usize * t.len(),
+        vec![("D".into(), FlatSamples::F16(values.to_vec())), ("observed".into(), FlatSamples::F16(observed))],
+    )
+}
+
+fn read_tables(path: &Path, grid: NdfGrid, n: usize) -> Result<TableSet, MaterialError> {
+    let (w, h, mut ch) = read_channels(path)?;
+    let cells = grid.len();
+    if w != grid.n_phi as usize || h != grid.n_theta as usize * n {
+        return Err(malformed(path, format!("is {w}x{h}, expected {}x{}", grid.n_phi, grid.n_theta as usize * n)));
+    }
+    let d = take(path, &mut ch, "D", cells * n)?;
+    if let Some(bad) = d.iter().position(|&x| x < 0.0) {
+        return Err(malformed(path, format!("NDF value {} at index {bad} is negative", d[bad])));
+    }
+    let obs = take(path, &mut ch, "observed", cells * n)?;
+    let words = cells.div_ceil(64);
+    let mut coverage = vec![0u64; words * n];
+    for k in 0..n {
+        for c in 0..cells {
+            if obs[k * cells + c] > 0.5 {
+                coverage[k * words + c / 64] |= 1 << (c % 64);
+            }
+        }
+    }
+    let values = d.into_iter().map(f16::from_f32).collect();
+    TableSet::from_raw(grid, n, values, coverage).ok_or_else(|| malformed(path, "inconsistent table sizes"))
+}
+
+/// Write a material directory atomically: everything goes into a temporary
+/// sibling directory which then replaces `dir`.
+pub fn write(dir: &Path, m: &Material) -> Result<(), MaterialError> {
+    let n = m.n_points();
+    for (what, len) in [("kd", m.kd.len()), ("ks", m.ks.len()), ("eta", m.eta.len()), ("flags", m.flags.len())] {
+        if len != n {
+            return Err(malformed(dir, format!("{what} has {len} points, the grid has {n}")));
+        }
+    }
+    let parent = dir.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    fs::create_dir_all(parent).map_err(|e| io(parent, e))?;
+    let name = dir.file_name().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "material".into());
+    let tmp = parent.join(format!(".{name}.tmp-{}", std::process::id()));
+    let _ = fs::remove_dir_all(&tmp);
+    fs::create_dir_all(&tmp).map_err(|e| io(&tmp, e))?;
+    let result = write_into(&tmp, m);
+    if let Err(e) = result {
+        let _ = fs::remove_dir_all(&tmp);
+        return Err(e);
+    }
+    let old = parent.join(format!(".{name}.old-{}", std::process::id()));
+    if dir.exists() {
+        fs::rename(dir, &old).map_err(|e| io(dir, e))?;
+    }
+    fs::rename(&tmp, dir).map_err(|e| io(dir, e))?;
+    let _ = fs::remove_dir_all(&old);
+    Ok(())
+}
+
+fn write_into(dir: &Path, m: &Material) -> Result<(), MaterialError> {
+    let (w, h) = (m.grid.cols as usize, m.grid.rows as usize);
+    let col = |c: usize, v: &[[f32; 3]]| FlatSamples::F32(v.iter().map(|x| x[c]).collect());
+    let mut maps = vec![
+        ("kd.R".to_string(), col(0, &m.kd)),
+        ("kd.G".into(), col(1, &m.kd)),
+        ("kd.B".into(), col(2, &m.kd)),
+        ("ks.R".into(), col(0, &m.ks)),
+        ("ks.G".into(), col(1, &m.ks)),
+        ("ks.B".into(), col(2, &m.ks)),
+        ("eta".into(), FlatSamples::F32(m.eta.clone())),
+        ("flags".into(), FlatSamples::U32(m.flags.clone())),
+    ];
+    if let Some(c) = &m.choice {
+        maps.push(("choice".into(), FlatSamples::U32(c.choice.iter().map(|&x| x as u32).collect())));
+    }
+    write_channels(&dir.join("maps.exr"), w, h, maps)?;
+    let ndf = match &m.ndf {
+        Some(t) => {
+            write_tables(&dir.join("ndf.exr"), t)?;
+            Some(NdfEntry { file: "ndf.exr".into(), grid: t.grid(), kind: m.ndf_kind })
+        }
+        None => None,
+    };
+    let partial_ndf = match &m.partial_ndf {
+        Some(t) => {
+            write_tables(&dir.join("ndf_partial.exr"), t)?;
+            Some(NdfEntry { file: "ndf_partial.exr".into(), grid: t.grid(), kind: NdfKind::Partial })
+        }
+        None => None,
+    };
+    let mut models = Vec::new();
+    for (name, mm) in &m.models {
+        let names = mm.model.param_names();
+        let np = names.len();
+        if mm.params.len() != np * m.n_points() {
+            return Err(malformed(
+                dir,
+                format!("model {name} has {} values, expected {}", mm.params.len(), np * m.n_points()),
+            ));
+        }
+        let chans = names
+            .iter()
+            .enumerate()
+            .map(|(k, n)| (n.clone(), FlatSamples::F32(mm.params.iter().skip(k).step_by(np).copied().collect())))
+            .collect();
+        let file = format!("model_{name}.exr");
+        write_channels(&dir.join(&file), w, h, chans)?;
+        models.push(ModelEntry { name: name.clone(), file, params: names, fit_seconds: mm.fit_seconds });
+    }
+    let choice = m.choice.as_ref().map(|c| ChoiceEntry {
+        legend: vec!["diffuse".into(), "isotropic".into(), "anisotropic".into(), "tabulated".into()],
+        isotropic_model: c.isotropic_model.name().into(),
+        anisotropic_model: c.anisotropic_model.name().into(),
+    });
+    let json = MaterialJson {
+        format_version: MATERIAL_FORMAT_VERSION,
+        name: m.name.clone(),
+        sample: m.sample,
+        grid: m.grid,
+        conventions: CONVENTIONS.into(),
+        units: UNITS.into(),
+        maps: "maps.exr".into(),
+        ndf,
+        partial_ndf,
+        models,
+        choice,
+        provenance: m.provenance.clone(),
+    };
+    let text = serde_json::to_string_pretty(&json).map_err(|e| malformed(dir, e.to_string()))?;
+    fs::write(dir.join("material.json"), text).map_err(|e| io(&dir.join("material.json"), e))
+}
+
+/// Read and validate a material directory.
+pub fn read(dir: &Path) -> Result<Material, MaterialError> {
+    let jp = dir.join("material.json");
+    if !jp.exists() {
+        return Err(MaterialError::NotAMaterial(dir.display().to_string()));
+    }
+    let text = fs::read_to_string(&jp).map_err(|e| io(&jp, e))?;
+    let v: serde_json::Value = serde_json::from_str(&text).map_err(|e| malformed(&jp, e.to_string()))?;
+    let found = v.get("format_version").and_then(|x| x.as_u64()).unwrap_or(0) as u32;
+    if found != MATERIAL_FORMAT_VERSION {
+        return Err(MaterialError::Version { path: jp.display().to_string(), found });
+    }
+    let j: MaterialJson = serde_json::from_value(v).map_err(|e| malformed(&jp, e.to_string()))?;
+    if j.grid.cols == 0 || j.grid.rows == 0 || j.grid.len() > 16_000_000 {
+        return Err(malformed(&jp, format!("grid {}x{} is not usable", j.grid.cols, j.grid.rows)));
+    }
+    let n = j.grid.len();
+    let mp = dir.join(&j.maps);
+    let (w, h, mut ch) = read_channels(&mp)?;
+    if (w, h) != (j.grid.cols as usize, j.grid.rows as usize) {
+        return Err(malformed(&mp, format!("is {w}x{h} but the grid is {}x{}", j.grid.cols, j.grid.rows)));
+    }
+    let tri = |ch: &mut BTreeMap<String, Vec<f32>>, p: &str| -> Result<Vec<[f32; 3]>, MaterialError> {
+        let r = take(&mp, ch, &format!("{p}.R"), n)?;
+        let g = take(&mp, ch, &format!("{p}.G"), n)?;
+        let b = take(&mp, ch, &format!("{p}.B"), n)?;
+        Ok((0..n).map(|i| [r[i], g[i], b[i]]).collect())
+    };
+    let kd = tri(&mut ch, "kd")?;
+    let ks = tri(&mut ch, "ks")?;
+    let eta = take(&mp, &mut ch, "eta", n)?;
+    let flags = take(&mp, &mut ch, "flags", n)?.into_iter().map(|x| x as u32).collect();
+    let ndf = match &j.ndf {
+        Some(e) => Some(read_tables(&dir.join(&e.file), e.grid, n)?),
+        None => None,
+    };
+    let partial_ndf = match &j.partial_ndf {
+        Some(e) => Some(read_tables(&dir.join(&e.file), e.grid, n)?),
+        None => None,
+    };
+    let mut models = BTreeMap::new();
+    for e in &j.models {
+        let model =
+            AnalyticModel::from_name(&e.name).ok_or_else(|| malformed(&jp, format!("unknown model '{}'", e.name)))?;
+        let path = dir.join(&e.file);
+        let (w, h, mut ch) = read_channels(&path)?;
+        if (w, h) != (j.grid.cols as usize, j.grid.rows as usize) {
+            return Err(malformed(&path, "size differs from the grid"));
+        }
+        let names = model.param_names();
+        let cols: Vec<Vec<f32>> = names.iter().map(|nm| take(&path, &mut ch, nm, n)).collect::<Result<_, _>>()?;
+        let mut params = Vec::with_capacity(n * names.len());
+        for p in 0..n {
+            params.extend(cols.iter().map(|c| c[p]));
+        }
+        models.insert(e.name.clone(), ModelMap { model, params, fit_seconds: e.fit_seconds });
+    }
+    let choice = match &j.choice {
+        Some(c) => {
+            let raw = take(&mp, &mut ch, "choice", n)?;
+            let choice = raw
+                .iter()
+                .map(|&x| {
+                    Choice::from_u8(x as u8).ok_or_else(|| malformed(&mp, format!("choice value {x} is not a class")))
+                })
+                .collect::<Result<_, _>>()?;
+            let model =
+                |s: &str| AnalyticModel::from_name(s).ok_or_else(|| malformed(&jp, format!("unknown model '{s}'")));
+            Some(ChoiceMap {
+                choice,
+                isotropic_model: model(&c.isotropic_model)?,
+                anisotropic_model: model(&c.anisotropic_model)?,
+            })
+        }
+        None => None,
+    };
+    let ndf_kind = j.ndf.as_ref().map_or(NdfKind::Partial, |e| e.kind);
+    Ok(Material {
+        name: j.name,
+        sample: j.sample,
+        grid: j.grid,
+        kd,
+        ks,
+        eta,
+        flags,
+        ndf,
+        ndf_kind,
+        partial_ndf,
+        models,
+        choice,
+        provenance: j.provenance,
+    })
+}
+
+/// Total size of a material directory on disk, in bytes.
+pub fn disk_bytes(dir: &Path) -> u64 {
+    fs::read_dir(dir).map(|rd| rd.flatten().filter_map(|e| e.metadata().ok()).map(|m| m.len()).sum()).unwrap_or(0)
+}
+
+/// Path of the main NDF file of a material directory.
+pub fn ndf_path(dir: &Path) -> PathBuf {
+    dir.join("ndf.exr")
+}
