@@ -54,6 +54,15 @@ pub fn run(s: &Scenario, settings: FitSettings) -> Fitted {
     // reflectance (sensitivity / electrons per DN), the true profile.
     let mut cal = Calibration::nominal(40, 1.0, sensor.black_level_dn);
     cal.led_scale = vec![sensor.sensitivity / sensor.e_per_dn(); 40];
+    // The lens's vignetting as the flat field (a white scan measures it).
+    let grid = PointGrid { cols: s.grid, rows: s.grid };
+    cal.flat_field = (0..grid.len())
+        .map(|i| {
+            let p = grid.position_of(&geometry.sample, i).extend(0.0);
+            geometry.camera.project(p).map_or(1.0, |px| geometry.camera.vignetting(px))
+        })
+        .collect();
+    cal.flat_field_grid = Some(grid);
     cal.read_noise_dn = [sensor.read_noise_e / sensor.e_per_dn(); 3];
     let inputs = FitInputs {
         geometry,

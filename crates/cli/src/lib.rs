@@ -4,6 +4,7 @@
 
 pub mod calib;
 pub mod capture;
+pub mod eval;
 pub mod fitjob;
 pub mod output;
 pub mod paths;

@@ -87,3 +87,35 @@ pub fn write_report(root: &Path, report: &Report) -> Result<()> {
     std::fs::rename(&tmp, &p).with_context(|| format!("cannot write {}", p.display()))?;
     Ok(())
 }
+
+/// `refl fit DIR`: refit a stored capture (replaying its frames through the
+/// same streaming fitter), writing `material/` and updating `report.json`.
+pub async fn refit(dir: &Path, q_override: Option<Quality>, rep: &mut Reporter) -> Result<PathBuf> {
+    let info = store::CaptureDir::read_info(dir)?;
+    let (entries, torn) = store::CaptureDir::read_manifest(dir)?;
+    if torn {
+        rep.warn("the manifest's last line is torn (the capture was interrupted); fitting what is complete");
+    }
+    let q: Quality = match q_override {
+        Some(q) => q,
+        None => serde_json::from_value(info.settings.clone()).context("capture.json lacks its quality settings")?,
+    };
+    let inputs = fit::FitInputs {
+        geometry: info.geometry.clone(),
+        plan: info.plan.clone(),
+        calibration: info.calibration.clone(),
+        grid: info.grid,
+        e_per_dn: info.sensor.e_per_dn,
+        bit_depth: info.sensor.bit_depth,
+    };
+    let job = FitJob::start(inputs, q.fit.clone());
+    let t = Instant::now();
+    let n = tokio::task::block_in_place(|| crate::fitjob::replay(dir, &entries, &job))?;
+    rep.stage("fit", format!("{n} stored frames read in {:.1} s", t.elapsed().as_secs_f64()));
+    let mut report = Report { sample: info.sample.clone(), quality: q.name.clone(), ..Report::default() };
+    let m = finish_fit(job, &info, &q, dir, rep, &mut report).await?;
+    report.peak_memory_mb = crate::report::peak_memory_mb();
+    report.material = Some(m.display().to_string());
+    write_report(dir, &report)?;
+    Ok(m)
+}

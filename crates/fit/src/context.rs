@@ -62,9 +62,9 @@ pub struct FitContext {
     pub view: Vec<Vec3>,
     pub flat: Vec<f32>,
     pub lights: Vec<Light>,
-    /// Local spacing of half vectors per light (radians), measured at the
-    /// grid's centre point: sets each sample's splatting kernel.
-    pub spacing_rad: Vec<f32>,
+    /// Spacing of neighbouring lights along the gantry and along the bar (mm).
+    pub step_spacing_mm: f32,
+    pub led_spacing_mm: f32,
 }
 
 impl FitContext {
@@ -96,10 +96,31 @@ impl FitContext {
                 lights.push(Light { step: s, led, bar_x_mm, pos: g.bar.led_position(bar_x_mm, led), scale });
             }
         }
-        let centre = inputs.grid.position(&g.sample, inputs.grid.cols / 2, inputs.grid.rows / 2).extend(0.0);
-        let dirs: Vec<Vec3> = lights.iter().map(|l| (l.pos - centre).normalize_or(Vec3::Z)).collect();
-        let spacing_rad = crate::partial::half_vector_spacing(g.camera.view_dir(centre), &dirs);
-        Self { inputs, positions, pixels, view, flat, lights, spacing_rad }
+        let plan = &inputs.plan;
+        let step_spacing_mm =
+            if plan.steps > 1 { (plan.last_mm - plan.first_mm).abs() / (plan.steps - 1) as f32 } else { 1.0 };
+        let led_spacing_mm = if plan.leds.len() > 1 {
+            let span =
+                (*plan.leds.iter().max().unwrap_or(&0) as f32 - *plan.leds.iter().min().unwrap_or(&0) as f32).abs();
+            span * g.bar.pitch_mm / (plan.leds.len() - 1) as f32
+        } else {
+            g.bar.pitch_mm
+        };
+        Self { inputs, positions, pixels, view, flat, lights, step_spacing_mm, led_spacing_mm }
+    }
+
+    /// Angular spacing (radians) between the half vector of light `q` at
+    /// point `p` and those of its neighbouring lights: the larger of the
+    /// steps along the gantry and along the bar, seen from the point
+    /// (`|displacement perpendicular to i| / r`), halved-and-more by the
+    /// half vector (`dh = di / |i + o|`).
+    pub fn half_vector_spacing(&self, p: usize, q: usize) -> f32 {
+        let d = self.lights[q].pos - self.positions[p];
+        let r = d.length().max(1e-3);
+        let i = d / r;
+        let dx = self.step_spacing_mm * (1.0 - i.x * i.x).max(0.0).sqrt();
+        let dy = self.led_spacing_mm * (1.0 - i.y * i.y).max(0.0).sqrt();
+        dx.max(dy) / r / (i + self.view[p]).length().max(1e-3)
     }
 
     pub fn n_points(&self) -> usize {

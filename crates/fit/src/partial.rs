@@ -12,12 +12,13 @@
 //!    `k_s = 1/pi` start is the same thing, scaled). Each sample spreads
 //!    over the cells around `h_q` with an angular Gaussian whose width is
 //!    set by the local spacing of the capture's half vectors
-//!    (`FitContext::kernel_rad`): near the normal the table's cells are far
+//!    (`FitContext::half_vector_spacing`): near the normal the table's cells are far
 //!    smaller than that spacing, and a splat into the four nearest cells
 //!    would leave most of them empty; far from it, half vectors are denser
 //!    and the kernel narrower.
 //! 4. **Observed region**: cells with at least `observed_weight` of kernel
-//!    weight (about a third of what a cell among samples receives), then a
+//!    weight (the region ends about one sample spacing beyond the outermost
+//!    sample, see `FitSettings::observed_weight`), then a
 //!    morphological closing (dilate, erode; 3x3, periodic in phi) that
 //!    fills one-cell gaps without growing the boundary. Gaps inside are
 //!    filled by push-pull ([`crate::pushpull`]); nothing is extrapolated
@@ -148,6 +149,12 @@ pub struct Scratch {
     centres: Vec<Vec3>,
     sum_w: Vec<f32>,
     sum_wd: Vec<f32>,
+    /// Fixed per point: covered cells, push-pull confidence, per-sample
+    /// `sigma(i)` and Fresnel factor.
+    covered: Vec<bool>,
+    confidence: Vec<f32>,
+    sigma_i: Vec<f32>,
+    fresnel: Vec<f32>,
 }
 
 /// Scalar specular sample counts as significant above this many standard
@@ -157,6 +164,8 @@ const SIGNIFICANT_SIGMA: f32 = 3.0;
 const MIN_SIGNIFICANT: usize = 5;
 /// Fewer symmetric pairs than this and Fresnel is not fitted.
 const MIN_PAIRS: usize = 6;
+/// At most this many (strongest) pairs enter the Fresnel fit.
+const MAX_PAIRS: usize = 128;
 
 fn lum(c: [f32; 3]) -> f32 {
     LUMA[0] * c[0] + LUMA[1] * c[1] + LUMA[2] * c[2]
@@ -166,14 +175,27 @@ fn finite_or(v: f32, d: f32) -> f32 {
     if v.is_finite() { v } else { d }
 }
 
-/// Cells within three kernel widths of `h`, with Gaussian weights
+/// Entries of the Gaussian lookup table over `x = d^2 / (2 r^2)` in `[0, 3.125]`.
+const GAUSS_LUT: usize = 1024;
+const GAUSS_MAX_X: f32 = 3.125;
+
+fn gauss_lut() -> &'static [f32; GAUSS_LUT + 1] {
+    static LUT: std::sync::OnceLock<[f32; GAUSS_LUT + 1]> = std::sync::OnceLock::new();
+    LUT.get_or_init(|| std::array::from_fn(|k| (-(k as f32) / GAUSS_LUT as f32 * GAUSS_MAX_X).exp()))
+}
+
+/// Cells within 2.5 kernel widths of `h` (beyond that the weight is below
+/// 0.044 and is dropped), with Gaussian weights (from a 1,024-entry table,
+/// linearly interpolated: relative error below 1e-6)
 /// `exp(-d^2 / (2 r^2))` of the chord distance `d` to each cell centre.
 fn kernel_cells(grid: NdfGrid, centres: &[Vec3], h: Vec3, r: f32, out: &mut Vec<(u32, f32)>) {
     let (nt, np) = (grid.n_theta as usize, grid.n_phi as usize);
-    let reach = 3.0 * r;
+    let reach = 2.5 * r;
     let theta_h = brdf::frame::sin2_theta(h).sqrt().atan2(h.z);
     let phi_h = brdf::frame::phi(h);
     let inv2r2 = 1.0 / (2.0 * r * r);
+    let lut = gauss_lut();
+    let scale = GAUSS_LUT as f32 / GAUSS_MAX_X;
     for t in 0..nt {
         let (t0, t1) = (grid.theta_edge(t), grid.theta_edge(t + 1));
         if t1 < theta_h - reach || t0 > theta_h + reach {
@@ -192,64 +214,36 @@ fn kernel_cells(grid: NdfGrid, centres: &[Vec3], h: Vec3, r: f32, out: &mut Vec<
             let c = t * np + p;
             let d2 = (h - centres[c]).length_squared();
             if d2 <= reach * reach {
-                out.push((c as u32, (-d2 * inv2r2).exp()));
+                let x = (d2 * inv2r2 * scale).min(GAUSS_LUT as f32 - 1e-3);
+                let k = x as usize;
+                let f = x - k as f32;
+                out.push((c as u32, lut[k] + (lut[k + 1] - lut[k]) * f));
             }
         }
     }
 }
 
-/// Local spacing of half vectors: for each light direction (seen from
-/// view `o`), the mean angle (radians) from its half vector to its four
-/// nearest neighbours' half vectors.
-pub fn half_vector_spacing(o: Vec3, lights: &[Vec3]) -> Vec<f32> {
-    const K: usize = 4;
-    let hs: Vec<Vec3> = lights.iter().map(|&i| (i + o).normalize_or(Vec3::Z)).collect();
-    hs.iter()
-        .enumerate()
-        .map(|(a, &ha)| {
-            let mut best = [-1.0f32; K];
-            for (b, &hb) in hs.iter().enumerate() {
-                if b == a {
-                    continue;
-                }
-                let c = ha.dot(hb).min(1.0);
-                if c > best[K - 1] && c < 1.0 - 1e-12 {
-                    best[K - 1] = c;
-                    best.sort_by(|x, y| y.total_cmp(x));
-                }
-            }
-            let valid: Vec<f32> = best.iter().filter(|&&c| c > -1.0).map(|&c| c.acos()).collect();
-            if valid.is_empty() { 0.05 } else { valid.iter().sum::<f32>() / valid.len() as f32 }
-        })
-        .collect()
-}
-
-/// Morphological closing of the observed set (3x3, periodic in phi).
+/// Morphological closing of the observed set (3x3 square, periodic in phi,
+/// clamped in theta), as separable 3-tap passes.
 fn close(grid: NdfGrid, observed: &[bool]) -> Vec<bool> {
     let (nt, np) = (grid.n_theta as usize, grid.n_phi as usize);
-    let morph = |src: &[bool], dilate: bool| -> Vec<bool> {
+    let pass = |src: &[bool], dilate: bool, along_phi: bool| -> Vec<bool> {
         let mut out = vec![false; nt * np];
         for t in 0..nt {
             for p in 0..np {
-                let mut acc = !dilate;
-                for dt in -1i64..=1 {
-                    let tt = t as i64 + dt;
-                    if tt < 0 || tt >= nt as i64 {
-                        continue;
-                    }
-                    for dp in -1i64..=1 {
-                        let pp = (p as i64 + dp).rem_euclid(np as i64) as usize;
-                        let v = src[tt as usize * np + pp];
-                        acc = if dilate { acc || v } else { acc && v };
-                    }
-                }
-                out[t * np + p] = acc;
+                let (a, b) = if along_phi {
+                    (src[t * np + (p + np - 1) % np], src[t * np + (p + 1) % np])
+                } else {
+                    (src[t.saturating_sub(1) * np + p], src[(t + 1).min(nt - 1) * np + p])
+                };
+                let c = src[t * np + p];
+                out[t * np + p] = if dilate { a || b || c } else { a && b && c };
             }
         }
         out
     };
-    let d = morph(observed, true);
-    let mut c = morph(&d, false);
+    let d = pass(&pass(observed, true, true), true, false);
+    let mut c = pass(&pass(&d, false, true), false, false);
     // Closing never removes observed cells.
     for (o, c) in observed.iter().zip(c.iter_mut()) {
         *c |= *o;
@@ -262,48 +256,42 @@ struct Splatted {
     k_s: f32,
 }
 
-/// Steps 3-5 once: splat with the given projected areas and Fresnel.
-fn splat_once(
-    grid: NdfGrid,
-    ps: &PointSamples,
-    spec: &[f32],
-    masking: Option<&MaskingTable>,
-    eta: Option<f32>,
-    settings: &FitSettings,
-    s: &mut Scratch,
-) -> Splatted {
+/// The parts of splatting that do not change between iterations: kernel
+/// weight per cell, the observed region and its closing, and push-pull
+/// confidences.
+fn prepare(grid: NdfGrid, settings: &FitSettings, s: &mut Scratch) {
     let cells = grid.len();
     s.sum_w.clear();
     s.sum_w.resize(cells, 0.0);
+    for &(c, w) in &s.cells {
+        s.sum_w[c as usize] += w;
+    }
+    let observed: Vec<bool> = s.sum_w.iter().map(|&w| w >= settings.observed_weight).collect();
+    s.covered = close(grid, &observed);
+    s.confidence = s.sum_w.iter().map(|&w| (w / settings.observed_weight).min(1.0)).collect();
+}
+
+/// Steps 3-5 once: splat `D'` with the current per-sample `sigma(i)` and
+/// Fresnel factors (in the scratch) and `sigma(o)`, fill, normalise.
+fn splat_once(grid: NdfGrid, ps: &PointSamples, spec: &[f32], sigma_o: f32, s: &mut Scratch) -> Splatted {
+    let cells = grid.len();
     s.sum_wd.clear();
     s.sum_wd.resize(cells, 0.0);
-    let sigma = |v: Vec3| masking.map_or(v.z, |m| m.projected_area(v));
-    let sigma_o = sigma(ps.o);
-    let f0 = eta.map(fresnel::dielectric_f0);
-    for (k, smp) in ps.samples.iter().enumerate() {
-        let h = s.h[k];
-        let f = match (eta, f0) {
-            (Some(e), Some(f0)) => (fresnel::dielectric(smp.i.dot(h), e) / f0.max(1e-6)).max(1e-3),
-            _ => 1.0,
-        };
-        let d = 4.0 * spec[k] * sigma(smp.i) * sigma_o / f;
+    for k in 0..ps.samples.len() {
+        let d = 4.0 * spec[k] * s.sigma_i[k] * sigma_o / s.fresnel[k];
         if !d.is_finite() {
             continue;
         }
         for &(c, w) in &s.cells[s.offsets[k]..s.offsets[k + 1]] {
-            s.sum_w[c as usize] += w;
             s.sum_wd[c as usize] += w * d;
         }
     }
-    let observed: Vec<bool> = s.sum_w.iter().map(|&w| w >= settings.observed_weight).collect();
-    let covered = close(grid, &observed);
     let mut values: Vec<f32> =
         s.sum_w.iter().zip(&s.sum_wd).map(|(&w, &wd)| if w > 0.0 { wd / w } else { 0.0 }).collect();
-    let weight: Vec<f32> = s.sum_w.iter().map(|&w| (w / settings.observed_weight).min(1.0)).collect();
-    push_pull(grid.n_theta as usize, grid.n_phi as usize, &mut values, &weight, &covered);
+    push_pull(grid.n_theta as usize, grid.n_phi as usize, &mut values, &s.confidence, &s.covered);
     let mut cov = Coverage::empty(cells);
     for (c, v) in values.iter_mut().enumerate() {
-        if covered[c] {
+        if s.covered[c] {
             cov.set(c, true);
             *v = finite_or(*v, 0.0).max(0.0);
         } else {
@@ -344,6 +332,12 @@ fn fit_eta(table: &NdfTable, k_s: f32, o: Vec3, observed: &[f32], settings: &Fit
     if pairs.len() < MIN_PAIRS {
         return None;
     }
+    // The strongest pairs carry the information; 128 of them determine eta
+    // to well below its noise, and bound the cost per point.
+    if pairs.len() > MAX_PAIRS {
+        pairs.sort_by(|a, b| b.3.total_cmp(&a.3));
+        pairs.truncate(MAX_PAIRS);
+    }
     let cost = |x: f32| -> f32 {
         let eta = x.exp();
         pairs
@@ -358,7 +352,8 @@ fn fit_eta(table: &NdfTable, k_s: f32, o: Vec3, observed: &[f32], settings: &Fit
     let g = 0.618_034f32;
     let (mut x1, mut x2) = (hi - g * (hi - lo), lo + g * (hi - lo));
     let (mut f1, mut f2) = (cost(x1), cost(x2));
-    for _ in 0..40 {
+    // 25 golden-section steps shrink the bracket on ln(eta) by 0.618^25, to 2e-5.
+    for _ in 0..25 {
         if f1 < f2 {
             hi = x2;
             x2 = x1;
@@ -455,27 +450,59 @@ pub fn fit_point(ps: &PointSamples, settings: &FitSettings, op: &MaskingOperator
     }
     s.centres = centres;
     let spec = std::mem::take(&mut s.spec);
-    // 3-5. Splat, normalise, mask, repeat.
-    let iterate = |eta: Option<f32>, s: &mut Scratch, stats: &mut PointStats| -> (Splatted, bool) {
-        let mut cur = splat_once(grid, ps, &spec, None, eta, settings, s);
+    prepare(grid, settings, s);
+    // 3-5. Splat, normalise, mask, repeat (at most `iterations` masking steps).
+    let iterate = |eta: Option<f32>,
+                   start: Option<&MaskingTable>,
+                   iterations: u32,
+                   s: &mut Scratch,
+                   stats: &mut PointStats|
+     -> (Splatted, bool, Option<MaskingTable>) {
+        let f0 = eta.map(fresnel::dielectric_f0).unwrap_or(1.0).max(1e-6);
+        s.fresnel.clear();
+        for (k, x) in ps.samples.iter().enumerate() {
+            let f = match eta {
+                Some(e) => (fresnel::dielectric(x.i.dot(s.h[k]), e) / f0).max(1e-3),
+                None => 1.0,
+            };
+            s.fresnel.push(f);
+        }
+        s.sigma_i.clear();
+        let sigma_o = match start {
+            Some(m) => {
+                s.sigma_i.extend(ps.samples.iter().map(|x| m.projected_area(x.i)));
+                m.projected_area(ps.o)
+            }
+            None => {
+                s.sigma_i.extend(ps.samples.iter().map(|x| x.i.z));
+                ps.o.z
+            }
+        };
+        let mut cur = splat_once(grid, ps, &spec, sigma_o, s);
         let mut converged = false;
-        for it in 0..settings.max_masking_iterations {
+        let mut last = None;
+        for _ in 0..iterations {
             stats.iterations += 1;
             if !(cur.k_s > 0.0) {
                 break;
             }
             let m = op.projected_areas(&cur.table);
-            let next = splat_once(grid, ps, &spec, Some(&m), eta, settings, s);
+            s.sigma_i.clear();
+            s.sigma_i.extend(ps.samples.iter().map(|x| m.projected_area(x.i)));
+            let next = splat_once(grid, ps, &spec, m.projected_area(ps.o), s);
             let change = next.table.rel_l2(&cur.table, None).unwrap_or(0.0);
             cur = next;
-            if it > 0 && change < settings.masking_tolerance {
+            last = Some(m);
+            if change < settings.masking_tolerance {
                 converged = true;
                 break;
             }
         }
-        (cur, converged)
+        (cur, converged, last)
     };
-    let (first, mut converged) = iterate(None, s, &mut stats);
+    // A first estimate with F = 1 and one masking step is enough to fit eta.
+    let (first, mut converged, first_masking) =
+        iterate(None, None, if settings.fit_fresnel { 1 } else { settings.max_masking_iterations }, s, &mut stats);
     let mut result = first;
     let mut eta = DEFAULT_ETA;
     if settings.fit_fresnel && result.k_s > 0.0 {
@@ -483,11 +510,18 @@ pub fn fit_point(ps: &PointSamples, settings: &FitSettings, op: &MaskingOperator
         match fit_eta(&result.table, result.k_s, ps.o, &observed, settings) {
             Some(e) => {
                 eta = e;
-                let (again, c) = iterate(Some(e), s, &mut stats);
+                let (again, c, _) =
+                    iterate(Some(e), first_masking.as_ref(), settings.max_masking_iterations, s, &mut stats);
                 result = again;
                 converged = c;
             }
-            None => flags |= point_flag::ETA_DEFAULT,
+            None => {
+                flags |= point_flag::ETA_DEFAULT;
+                let (again, c, _) =
+                    iterate(None, first_masking.as_ref(), settings.max_masking_iterations, s, &mut stats);
+                result = again;
+                converged = c;
+            }
         }
     } else {
         flags |= point_flag::ETA_DEFAULT;

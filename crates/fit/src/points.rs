@@ -39,6 +39,9 @@ pub fn gather(ctx: &FitContext, store: &SampleStore, p: usize, settings: &FitSet
     let mut ps = PointSamples { o: ctx.view[p], in_view: ctx.pixels[p].is_some(), ..PointSamples::default() };
     ps.samples.reserve(ctx.n_lights());
     for q in 0..ctx.n_lights() {
+        if settings.holdout_every.is_some_and(|k| k > 0 && q as u32 % k == 0) {
+            continue;
+        }
         let (rho, fl) = store.get(q, p);
         if fl & (flag::OCCLUDED | flag::OUT_OF_VIEW | flag::DIM | flag::MISSING) == 0 {
             ps.lit += 1;
@@ -56,7 +59,7 @@ pub fn gather(ctx: &FitContext, store: &SampleStore, p: usize, settings: &FitSet
         let k = g.to_rho / (t * gain);
         let l = crate::partial::LUMA.iter().zip(&rho).map(|(w, r)| w * r).sum::<f32>().max(0.0);
         let var = k * k * read * read + k * l * gain / e_per_dn;
-        let kernel_rad = settings.kernel_scale * ctx.spacing_rad[q];
+        let kernel_rad = settings.kernel_scale * ctx.half_vector_spacing(p, q);
         ps.samples.push(Sample { i: g.i, rho, var: var.max(1e-20), kernel_rad });
     }
     ps

@@ -14,6 +14,30 @@ struct Args {
 
 #[derive(Debug, Subcommand)]
 enum Cmd {
+    /// Fit (or refit) a stored capture: writes DIR/material and DIR/report.json.
+    Fit {
+        /// Capture directory.
+        dir: std::path::PathBuf,
+        /// Use another quality preset's fitting knobs than the capture's.
+        #[arg(long)]
+        quality: Option<String>,
+    },
+    /// Score a capture's fitted material: renders under novel conditions
+    /// against ground truth (simulated captures), NDF errors, and hold-out
+    /// prediction of every 8th light (any capture).
+    Eval {
+        /// Capture directory.
+        dir: std::path::PathBuf,
+        /// Print one JSON object to stdout.
+        #[arg(long)]
+        json: bool,
+        /// Render size (pixels per side).
+        #[arg(long, default_value_t = 128)]
+        px: u32,
+        /// Skip the hold-out refit.
+        #[arg(long)]
+        no_holdout: bool,
+    },
     /// Start the emulated rig microcontroller on a pseudo-terminal and print its device path.
     SimMcu {
         /// Faults to inject (see `capture --help`).
@@ -40,6 +64,27 @@ fn main() -> ExitCode {
     };
     let r: anyhow::Result<()> = rt.block_on(async {
         match args.cmd {
+            Cmd::Fit { dir, quality } => {
+                let mut rep = cli::progress::Reporter::auto(false);
+                let q = match quality {
+                    Some(n) => Some(cli::presets::preset(&n).ok_or_else(|| anyhow::anyhow!("unknown quality '{n}'"))?),
+                    None => None,
+                };
+                let m = cli::output::refit(&dir, q, &mut rep).await?;
+                println!("{}", m.display());
+                Ok(())
+            }
+            Cmd::Eval { dir, json, px, no_holdout } => {
+                let mut rep = cli::progress::Reporter::new(if json {
+                    cli::progress::Mode::Silent
+                } else {
+                    cli::progress::Mode::Plain
+                });
+                let opts = cli::eval::EvalOptions { render_px: px, holdout: !no_holdout, ..Default::default() };
+                let ev = tokio::task::block_in_place(|| cli::eval::evaluate(&dir, &opts, &mut rep))?;
+                println!("{}", if json { serde_json::to_string(&ev)? } else { serde_json::to_string_pretty(&ev)? });
+                Ok(())
+            }
             Cmd::SimMcu { faults, link, time_scale } => {
                 let spec = sim::FaultSpec::parse(&faults).map_err(|e| anyhow::anyhow!("--faults: {e}"))?;
                 let cfg = cli::session::mcu_config(&setup::RigGeometry::default(), time_scale);

@@ -1,0 +1,365 @@
+//! `refl eval DIR`: how good is the fitted material?
+//!
+//! - **Renders against ground truth** (simulated captures only): every
+//!   model the material holds and the true material are rendered under
+//!   novel conditions, none of them a capture configuration: views from
+//!   overhead to 70 degrees on every side, point lights from 20 to 80
+//!   degrees elevation all around. Several put the half vector where the
+//!   capture's camera never looked (it sat on the `-x` side, so half
+//!   vectors tilted far toward `+x` were never observed); the fraction of
+//!   pixels whose half vector lies outside the point's observed region is
+//!   reported per condition. `render_rel_rmse = sqrt(sum (model - truth)^2 /
+//!   sum truth^2)` over all pixels and channels of all conditions.
+//! - **NDF errors** against the true NDF, the same relative L2 in the
+//!   table's cosine measure, over the observed cells and the whole
+//!   hemisphere, pooled over up to 1,024 points spread over the sample.
+//! - **Hold-out**: for any capture, real or simulated, the material is
+//!   refitted without every 8th light and predicts those lights' samples;
+//!   `frame_rel_rmse` is the same relative error in reflectance over every
+//!   usable held-out sample. This is the figure a lab gets without ground
+//!   truth.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+use std::sync::Arc;
+use std::time::Instant;
+
+use anyhow::{Context, Result, anyhow};
+use brdf::Brdf;
+use brdf::fresnel::Fresnel;
+use brdf::model::Microfacet;
+use brdf::ndf::{MaskingOperator, NdfTable, TabulatedNdf};
+use glam::Vec3;
+use material::{Material, MaterialView, ModelChoice, NdfKind, SvBrdf};
+use render::{Image, Light, Scene};
+use serde::Serialize;
+use setup::SampleArea;
+use store::CaptureDir;
+
+use crate::capture::sim_material;
+use crate::presets::Quality;
+use crate::progress::Reporter;
+
+/// One novel viewing and lighting condition.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Condition {
+    pub name: String,
+    /// Angle of the view from the sample normal.
+    pub camera_polar_deg: f32,
+    pub camera_azimuth_deg: f32,
+    /// Elevation of the light above the sample plane.
+    pub light_elevation_deg: f32,
+    pub light_azimuth_deg: f32,
+}
+
+/// The evaluation conditions (views and point lights, degrees).
+pub fn conditions() -> Vec<Condition> {
+    let c = |name: &str, ce, ca, le, la| Condition {
+        name: name.into(),
+        camera_polar_deg: ce,
+        camera_azimuth_deg: ca,
+        light_elevation_deg: le,
+        light_azimuth_deg: la,
+    };
+    vec![
+        c("overhead, light low", 0.0, 0.0, 25.0, 30.0),
+        c("side view across the weave", 35.0, 90.0, 50.0, 250.0),
+        c("far side, low light", 55.0, 200.0, 20.0, 20.0),
+        c("opposite the capture camera", 45.0, 180.0, 60.0, 0.0),
+        c("grazing from +x, light +x", 70.0, 0.0, 20.0, 10.0),
+        c("from +x, light high +x", 60.0, 20.0, 80.0, 350.0),
+        c("+x view, light +y", 50.0, 330.0, 45.0, 60.0),
+        c("near normal, light high", 20.0, 45.0, 80.0, 135.0),
+        c("from -y, light +y", 50.0, 270.0, 40.0, 90.0),
+    ]
+}
+
+/// Distance of the evaluation camera and lights from the sample centre.
+const EVAL_DISTANCE_MM: f32 = 400.0;
+
+pub fn scene_for(c: &Condition, px: u32) -> Scene {
+    let light = render::scene::dir_from(c.light_elevation_deg.to_radians(), c.light_azimuth_deg.to_radians());
+    let camera = Scene::camera(c.camera_polar_deg, c.camera_azimuth_deg, EVAL_DISTANCE_MM, 18.0, px);
+    Scene {
+        camera,
+        lights: vec![Light::Point {
+            position_mm: light * EVAL_DISTANCE_MM,
+            intensity: Vec3::splat(EVAL_DISTANCE_MM * EVAL_DISTANCE_MM),
+        }],
+        env: None,
+        env_samples: 0,
+    }
+}
+
+/// Per-model figures.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct ModelScore {
+    pub render_rel_rmse: Option<f64>,
+    pub ndf_rel_l2_observed: Option<f64>,
+    pub ndf_rel_l2_full: Option<f64>,
+    pub fit_seconds: Option<f64>,
+}
+
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct Holdout {
+    pub frame_rel_rmse: Option<f64>,
+}
+
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct ConditionDetail {
+    pub name: String,
+    /// Fraction of lit sample pixels whose half vector lies outside the
+    /// point's observed region.
+    pub unobserved_fraction: f64,
+}
+
+/// The output of `refl eval --json`.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct Evaluation {
+    pub sample: String,
+    pub ground_truth: bool,
+    pub conditions: usize,
+    pub models: BTreeMap<String, ModelScore>,
+    pub holdout: BTreeMap<String, Holdout>,
+    pub condition_detail: Vec<ConditionDetail>,
+}
+
+#[derive(Clone, Debug)]
+pub struct EvalOptions {
+    pub render_px: u32,
+    pub holdout: bool,
+    pub max_ndf_points: usize,
+}
+
+impl Default for EvalOptions {
+    fn default() -> Self {
+        Self { render_px: 128, holdout: true, max_ndf_points: 1024 }
+    }
+}
+
+/// The models a material holds, as eval names them.
+pub fn model_names(m: &Material) -> Vec<(String, ModelChoice)> {
+    let mut v = Vec::new();
+    match m.ndf_kind {
+        NdfKind::Synthesized => {
+            v.push(("synthesized".to_string(), ModelChoice::Tabulated));
+            if m.partial_ndf.is_some() {
+                v.push(("partial".to_string(), ModelChoice::Partial));
+            }
+        }
+        _ if m.ndf.is_some() => v.push(("partial".to_string(), ModelChoice::Tabulated)),
+        _ => {}
+    }
+    for (name, mm) in &m.models {
+        v.push((name.clone(), ModelChoice::Analytic(mm.model)));
+    }
+    if m.choice.is_some() {
+        v.push(("auto".to_string(), ModelChoice::Auto));
+    }
+    v
+}
+
+/// Fraction of lit pixels whose half vector is outside the observed region.
+fn unobserved_fraction(m: &Material, c: &Condition, sample: &SampleArea) -> f64 {
+    let Some(partial) = m.partial_ndf.as_ref().or(m.ndf.as_ref()) else { return 0.0 };
+    let scene = scene_for(c, 48);
+    let Light::Point { position_mm, .. } = scene.lights[0] else { return 0.0 };
+    let (mut out, mut n) = (0usize, 0usize);
+    for y in 0..48 {
+        for x in 0..48 {
+            let Some(q) = scene.camera.pixel_to_plane(glam::Vec2::new(x as f32 + 0.5, y as f32 + 0.5)) else {
+                continue;
+            };
+            if !sample.contains(q) {
+                continue;
+            }
+            let Some(pi) = m.point_at(q) else { continue };
+            let p = q.extend(0.0);
+            let (o, i) = (scene.camera.view_dir(p), (position_mm - p).normalize());
+            if o.z <= 0.0 || i.z <= 0.0 {
+                continue;
+            }
+            let h = (i + o).normalize();
+            let grid = partial.grid();
+            let Some((t, s)) = grid.cell(h) else { continue };
+            let words = partial.coverage_words(pi);
+            let cell = grid.index(t, s);
+            n += 1;
+            if (words[cell / 64] >> (cell % 64)) & 1 == 0 {
+                out += 1;
+            }
+        }
+    }
+    if n == 0 { 0.0 } else { out as f64 / n as f64 }
+}
+
+fn ndf_errors(m: &Material, which: ModelChoice, truth: &dyn SvBrdf, max_points: usize) -> (Option<f64>, Option<f64>) {
+    let set = match which {
+        ModelChoice::Tabulated => m.ndf.as_ref(),
+        ModelChoice::Partial => m.partial_ndf.as_ref().or(m.ndf.as_ref()),
+        _ => None,
+    };
+    let Some(set) = set else { return (None, None) };
+    let observed_set = m.partial_ndf.as_ref().unwrap_or(set);
+    let n = m.n_points();
+    let stride = n.div_ceil(max_points.max(1)).max(1);
+    let grid = set.grid();
+    let sums: Vec<(f64, f64, f64, f64)> = (0..n)
+        .step_by(stride)
+        .collect::<Vec<_>>()
+        .into_iter()
+        .filter_map(|p| {
+            let pos = m.grid.position_of(&m.sample, p);
+            let tp = truth.at(pos);
+            let ndf = tp.ndf()?;
+            let mut t = NdfTable::from_fn(grid, 3, |h| ndf.d(h));
+            t.normalize();
+            let est = set.get(p);
+            let obs = observed_set.get(p);
+            let (mut no, mut do_, mut nf, mut df) = (0.0, 0.0, 0.0, 0.0);
+            for c in 0..grid.len() {
+                let w = grid.cos_measure(c / grid.n_phi as usize) as f64;
+                let (a, b) = (est.values()[c] as f64, t.values()[c] as f64);
+                nf += w * (a - b) * (a - b);
+                df += w * b * b;
+                if obs.coverage().get(c) {
+                    no += w * (a - b) * (a - b);
+                    do_ += w * b * b;
+                }
+            }
+            Some((no, do_, nf, df))
+        })
+        .collect();
+    let tot = sums.iter().fold((0.0, 0.0, 0.0, 0.0), |a, s| (a.0 + s.0, a.1 + s.1, a.2 + s.2, a.3 + s.3));
+    ((tot.1 > 0.0).then(|| (tot.0 / tot.1).sqrt()), (tot.3 > 0.0).then(|| (tot.2 / tot.3).sqrt()))
+}
+
+/// Refit without every 8th light and predict the held-out samples.
+fn holdout(dir: &Path, rep: &mut Reporter) -> Result<BTreeMap<String, Holdout>> {
+    rep.stage("eval", "hold-out: refitting without every 8th light");
+    let info = CaptureDir::read_info(dir)?;
+    let (entries, _) = CaptureDir::read_manifest(dir)?;
+    let q: Quality =
+        serde_json::from_value(info.settings.clone()).context("capture.json lacks its quality settings")?;
+    let mut settings = q.fit.clone();
+    settings.holdout_every = Some(HOLDOUT_EVERY);
+    let inputs = fit::FitInputs {
+        geometry: info.geometry.clone(),
+        plan: info.plan.clone(),
+        calibration: info.calibration.clone(),
+        grid: info.grid,
+        e_per_dn: info.sensor.e_per_dn,
+        bit_depth: info.sensor.bit_depth,
+    };
+    // Ingest everything, keep the store, fit without the held-out lights.
+    let ctx = fit::FitContext::new(inputs);
+    let mut ingest = fit::Ingest::new(&ctx);
+    for e in &entries {
+        let f = CaptureDir::read_frame(dir, e)?;
+        match e.frame {
+            store::FrameKind::Dark { exposure, .. } => ingest.push_dark(exposure, &f),
+            store::FrameKind::Shot { index, step, led, exposure, position_um } => {
+                ingest.push_shot(&setup::PlannedShot { index, step, led, exposure, position_um }, &f)
+            }
+        }
+    }
+    let store = ingest.finish();
+    let op = MaskingOperator::new(settings.grid);
+    let maps = fit::fit_points(&ctx, &store, &settings, &op);
+    let (mut num, mut den) = (0.0f64, 0.0f64);
+    for p in 0..ctx.n_points() {
+        let table = maps.tables.get(p);
+        let spec = if maps.ks[p].iter().any(|&v| v > 0.0) && table.integral_cos() > 0.0 {
+            Some(TabulatedNdf::new(table, &op))
+        } else {
+            None
+        };
+        let kd = Vec3::from(maps.kd[p]);
+        let model: Box<dyn Brdf> = match spec {
+            Some(ndf) => Box::new(Microfacet {
+                kd,
+                ks: Vec3::from(maps.ks[p]),
+                ndf,
+                fresnel: Fresnel::DielectricRelative { eta: maps.eta[p] },
+            }),
+            None => Box::new(brdf::model::Lambert { albedo: kd }),
+        };
+        for q in (0..ctx.n_lights()).filter(|q| *q as u32 % HOLDOUT_EVERY == 0) {
+            let (rho, fl) = store.get(q, p);
+            if fl & fit::samples::flag::UNUSABLE != 0 {
+                continue;
+            }
+            let Some(g) = ctx.sample(p, q) else { continue };
+            let pred = model.eval(g.i, ctx.view[p]);
+            for c in 0..3 {
+                num += ((pred[c] - rho[c]) as f64).powi(2);
+                den += (rho[c] as f64).powi(2);
+            }
+        }
+    }
+    let mut out = BTreeMap::new();
+    out.insert("partial".to_string(), Holdout { frame_rel_rmse: (den > 0.0).then(|| (num / den).sqrt()) });
+    Ok(out)
+}
+
+/// Every k-th light is held out.
+pub const HOLDOUT_EVERY: u32 = 8;
+
+/// Evaluate a capture directory.
+pub fn evaluate(dir: &Path, opts: &EvalOptions, rep: &mut Reporter) -> Result<Evaluation> {
+    let info = CaptureDir::read_info(dir)?;
+    let mdir = dir.join("material");
+    let m = Arc::new(material::read(&mdir).with_context(|| format!("{} has no fitted material", dir.display()))?);
+    let truth: Option<Arc<dyn SvBrdf>> = match &info.simulated {
+        Some(s) => {
+            Some(sim_material(s.material.as_deref().unwrap_or(&info.sample), s.material_dir.as_deref().map(Path::new))?)
+        }
+        None => None,
+    };
+    let conds = conditions();
+    let mut ev = Evaluation {
+        sample: info.sample.clone(),
+        ground_truth: truth.is_some(),
+        conditions: conds.len(),
+        ..Evaluation::default()
+    };
+    ev.condition_detail = conds
+        .iter()
+        .map(|c| ConditionDetail {
+            name: c.name.clone(),
+            unobserved_fraction: unobserved_fraction(&m, c, &info.geometry.sample),
+        })
+        .collect();
+    let sample = info.geometry.sample;
+    let truth_renders: Option<Vec<Image>> = truth.as_ref().map(|t| {
+        rep.stage("eval", format!("rendering the ground truth under {} conditions", conds.len()));
+        conds.iter().map(|c| render::render(t.as_ref(), &sample, &scene_for(c, opts.render_px), 7)).collect()
+    });
+    for (name, choice) in model_names(&m) {
+        let t0 = Instant::now();
+        let view = MaterialView::new(m.clone(), choice).ok_or_else(|| anyhow!("material lacks model {name}"))?;
+        let mut score = ModelScore {
+            fit_seconds: m
+                .models
+                .get(&name)
+                .map(|mm| mm.fit_seconds)
+                .or_else(|| m.provenance.get("fit_seconds").and_then(|v| v.get(&name)).and_then(|v| v.as_f64())),
+            ..ModelScore::default()
+        };
+        if let (Some(truth), Some(tr)) = (&truth, &truth_renders) {
+            let renders: Vec<Image> =
+                conds.iter().map(|c| render::render(&view, &sample, &scene_for(c, opts.render_px), 7)).collect();
+            let pairs: Vec<(&Image, &Image)> = renders.iter().zip(tr.iter()).collect();
+            score.render_rel_rmse = render::rel_rmse(&pairs);
+            let (o, f) = ndf_errors(&m, choice, truth.as_ref(), opts.max_ndf_points);
+            score.ndf_rel_l2_observed = o;
+            score.ndf_rel_l2_full = f;
+        }
+        rep.stage("eval", format!("{name}: {:?} ({:.1} s)", score.render_rel_rmse, t0.elapsed().as_secs_f64()));
+        ev.models.insert(name, score);
+    }
+    if opts.holdout {
+        ev.holdout = holdout(dir, rep)?;
+    }
+    Ok(ev)
+}
