@@ -42,6 +42,18 @@ pub struct FitOutcome {
     pub frames: u64,
     pub timings: FitTimings,
     pub settings: FitSettings,
+    /// The partial tables when synthesis replaced them in `maps`.
+    pub partial: Option<brdf::ndf::TableSet>,
+    pub synth: Option<fit::synth::SynthStats>,
+    pub models: Vec<fit::analytic::ModelFit>,
+    pub selection: Option<fit::select::Selection>,
+}
+
+/// What the fitter does after the per-point stage.
+#[derive(Clone, Debug, Default)]
+pub struct Stages {
+    pub synth: Option<fit::synth::SynthSettings>,
+    pub analytic: Option<fit::analytic::AnalyticSettings>,
 }
 
 /// A fitter thread fed through a bounded channel (back-pressure: a capture
@@ -53,11 +65,11 @@ pub struct FitJob {
 }
 
 impl FitJob {
-    pub fn start(inputs: FitInputs, settings: FitSettings) -> Self {
+    pub fn start(inputs: FitInputs, settings: FitSettings, stages: Stages) -> Self {
         let (tx, rx) = sync_channel::<FrameMsg>(32);
         let handle = std::thread::Builder::new()
             .name("fitter".into())
-            .spawn(move || run(inputs, settings, rx))
+            .spawn(move || run(inputs, settings, stages, rx))
             .map_err(|e| anyhow!("cannot start the fitter thread: {e}"));
         match handle {
             Ok(h) => Self { tx: Some(tx), handle: Some(h) },
@@ -84,7 +96,7 @@ impl FitJob {
     }
 }
 
-fn run(inputs: FitInputs, settings: FitSettings, rx: Receiver<FrameMsg>) -> Result<FitOutcome> {
+fn run(inputs: FitInputs, settings: FitSettings, stages: Stages, rx: Receiver<FrameMsg>) -> Result<FitOutcome> {
     let ctx = FitContext::new(inputs);
     let t0 = Instant::now();
     let mut ingest_s = 0.0;
@@ -105,18 +117,41 @@ fn run(inputs: FitInputs, settings: FitSettings, rx: Receiver<FrameMsg>) -> Resu
     let census = store.census();
     let sample_bytes = store.bytes();
     let op = MaskingOperator::new(settings.grid);
-    let maps = fit::fit_points(&ctx, &store, &settings, &op);
+    let mut maps = fit::fit_points(&ctx, &store, &settings, &op);
     let points_s = last_frame.elapsed().as_secs_f64();
+    let mut timings = FitTimings { ingest_s, points_s, ..FitTimings::default() };
+    let (partial, synth_stats) = match stages.synth {
+        Some(ss) => {
+            let t = Instant::now();
+            let eligible: Vec<bool> = maps.flags.iter().map(|f| f & fit::point_flag::NO_SPECULAR == 0).collect();
+            let out = fit::synth::synthesize(&maps.tables, &eligible, &ss);
+            let partial = std::mem::replace(&mut maps.tables, out.tables);
+            for (p, &k) in out.mass_factor.iter().enumerate() {
+                if k != 1.0 {
+                    maps.ks[p] = maps.ks[p].map(|v| v * k);
+                    maps.flags[p] |= fit::point_flag::SYNTHESIZED;
+                }
+            }
+            timings.synthesis_s = t.elapsed().as_secs_f64();
+            (Some(partial), Some(out.stats))
+        }
+        None => (None, None),
+    };
+    let (models, selection) = match stages.analytic {
+        Some(a) if !a.models.is_empty() => {
+            let t = Instant::now();
+            let ev = fit::analytic::evidence(&ctx, &store, &maps, &settings, &a);
+            let models: Vec<_> = a.models.iter().map(|&m| fit::analytic::fit_model(m, &maps, &ev)).collect();
+            timings.analytic_s = t.elapsed().as_secs_f64();
+            let t = Instant::now();
+            let selection = fit::select::select(&maps, &ev, &models);
+            timings.selection_s = t.elapsed().as_secs_f64();
+            (models, selection)
+        }
+        _ => (Vec::new(), None),
+    };
     drop(store);
-    Ok(FitOutcome {
-        ctx,
-        maps,
-        census,
-        sample_bytes,
-        frames,
-        timings: FitTimings { ingest_s, points_s, ..FitTimings::default() },
-        settings,
-    })
+    Ok(FitOutcome { ctx, maps, census, sample_bytes, frames, timings, settings, partial, synth: synth_stats, models, selection })
 }
 
 /// Replay a stored capture's frames into a fit job (manifest order: dark

@@ -8,7 +8,8 @@ use anyhow::{Context, Result};
 use material::{Material, NdfKind};
 use store::CaptureInfo;
 
-use crate::fitjob::{FitJob, FitOutcome};
+use crate::fitjob::{FitJob, FitOutcome, Stages};
+use crate::presets::Overrides;
 use crate::presets::Quality;
 use crate::progress::Reporter;
 use crate::report::Report;
@@ -20,6 +21,14 @@ pub fn flag_counts(flags: &[u32]) -> serde_json::Value {
         m.insert(name.into(), serde_json::json!(flags.iter().filter(|&&f| f & bit != 0).count()));
     }
     serde_json::Value::Object(m)
+}
+
+/// The fitting stages a quality preset asks for, minus those switched off.
+pub fn stages(q: &Quality, o: &Overrides) -> Stages {
+    Stages {
+        synth: (!o.no_synthesis).then(|| q.synth.clone()),
+        analytic: (!o.no_analytic && !q.analytic.models.is_empty()).then(|| q.analytic.clone()),
+    }
 }
 
 /// The material the fit describes.
@@ -34,16 +43,28 @@ pub fn material_from(out: &FitOutcome, info: &CaptureInfo, q: &Quality) -> Mater
         eta: maps.eta.clone(),
         flags: maps.flags.clone(),
         ndf: Some(maps.tables.clone()),
-        ndf_kind: NdfKind::Partial,
-        partial_ndf: None,
-        models: Default::default(),
-        choice: None,
+        ndf_kind: if out.partial.is_some() { NdfKind::Synthesized } else { NdfKind::Partial },
+        partial_ndf: out.partial.clone(),
+        models: out
+            .models
+            .iter()
+            .map(|f| (f.model.name().to_string(), material::ModelMap { model: f.model, params: f.params.clone(), fit_seconds: f.seconds }))
+            .collect(),
+        choice: out.selection.as_ref().map(|s| material::ChoiceMap {
+            choice: s.choice.iter().map(|&c| material::Choice::from_u8(c).unwrap_or(material::Choice::Tabulated)).collect(),
+            isotropic_model: s.isotropic,
+            anisotropic_model: s.anisotropic,
+        }),
         provenance: serde_json::json!({
             "capture_created_utc": info.created_utc,
             "sample": info.sample,
             "quality": q,
             "calibration": info.calibration.id,
             "simulated": info.simulated,
+            "fit_seconds": {
+                "partial": out.timings.ingest_s + out.timings.points_s,
+                "synthesized": out.timings.ingest_s + out.timings.points_s + out.timings.synthesis_s,
+            },
         }),
     }
 }
@@ -66,6 +87,38 @@ pub async fn finish_fit(
     tokio::task::block_in_place(|| material::write(&dir, &m)).with_context(|| format!("writing {}", dir.display()))?;
     report.time("fit_ingest_s", out.timings.ingest_s);
     report.time("fit_points_s", out.timings.points_s);
+    report.time("fit_synthesis_s", out.timings.synthesis_s);
+    report.time("fit_analytic_s", out.timings.analytic_s);
+    report.time("fit_selection_s", out.timings.selection_s);
+    if let Some(sel) = &out.selection {
+        let s = &sel.summary;
+        rep.stage(
+            "fit",
+            format!(
+                "model choice: {} diffuse, {} {}, {} {}, {} tabulated; storage {:.1} MB instead of {:.1} MB",
+                s.points[0],
+                s.points[1],
+                s.isotropic_model,
+                s.points[2],
+                s.anisotropic_model,
+                s.points[3],
+                s.bytes_chosen as f64 / 1e6,
+                s.bytes_all_tabulated as f64 / 1e6
+            ),
+        );
+    }
+    if let Some(st) = &out.synth {
+        rep.stage(
+            "fit",
+            format!(
+                "synthesis completed {} of {} points (+{:.1}% of the hemisphere on average) in {:.1} s",
+                st.completed,
+                st.points,
+                100.0 * st.mean_added_coverage,
+                out.timings.synthesis_s
+            ),
+        );
+    }
     report.time("fit_total_after_capture_s", t.elapsed().as_secs_f64());
     report.fit = serde_json::json!({
         "points": out.maps.len(),
@@ -74,6 +127,13 @@ pub async fn finish_fit(
         "sample_store_mb": out.sample_bytes as f64 / 1e6,
         "ndf_tables_mb": out.maps.tables.bytes() as f64 / 1e6,
         "material_disk_mb": material::io::disk_bytes(&dir) as f64 / 1e6,
+        "synthesis": out.synth,
+        "analytic": out.models.iter().map(|f| serde_json::json!({
+            "model": f.model.name(),
+            "seconds": f.seconds,
+            "mean_residual": f.residual.iter().filter(|r| r.is_finite()).sum::<f32>() / f.residual.len().max(1) as f32,
+        })).collect::<Vec<_>>(),
+        "model_choice": out.selection.as_ref().map(|s| &s.summary),
     });
     rep.stage("fit", format!("material written to {}", dir.display()));
     Ok(dir)
@@ -108,7 +168,7 @@ pub async fn refit(dir: &Path, q_override: Option<Quality>, rep: &mut Reporter) 
         e_per_dn: info.sensor.e_per_dn,
         bit_depth: info.sensor.bit_depth,
     };
-    let job = FitJob::start(inputs, q.fit.clone());
+    let job = FitJob::start(inputs, q.fit.clone(), stages(&q, &Overrides::default()));
     let t = Instant::now();
     let n = tokio::task::block_in_place(|| crate::fitjob::replay(dir, &entries, &job))?;
     rep.stage("fit", format!("{n} stored frames read in {:.1} s", t.elapsed().as_secs_f64()));

@@ -13,13 +13,18 @@
 //! | synthesis clusters | 32 | 96 | 192 |
 //! | synthesis descriptor length | 16 | 32 | 32 |
 //! | synthesis rotation angles | 48 | 96 | 384 |
+//! | synthesis neighbours looked up per point | 24 | 48 | 96 |
+//! | synthesis passes | 1 | 2 | 2 |
 //! | analytic fits | Ward iso/aniso | all eight | all eight |
+//! | analytic fit clusters (shape parameters shared) | 16 | 32 | 64 |
 //!
 //! The figures behind these choices are in `refl tradeoff` (see the README).
 
 use brdf::ndf::NdfGrid;
 use brdf::params::AnalyticModel;
 use fit::FitSettings;
+use fit::analytic::AnalyticSettings;
+use fit::synth::{SearchMode, SynthSettings};
 use serde::{Deserialize, Serialize};
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -32,10 +37,10 @@ pub struct Quality {
     pub grid: u32,
     pub sim_camera_px: u32,
     pub fit: FitSettings,
-    pub synth_clusters: u32,
-    pub synth_descriptor: u32,
-    pub synth_rotations: u32,
-    pub analytic: Vec<AnalyticModel>,
+    #[serde(default)]
+    pub synth: SynthSettings,
+    #[serde(default)]
+    pub analytic: AnalyticSettings,
 }
 
 pub const PRESETS: [&str; 3] = ["fast", "balanced", "best"];
@@ -57,10 +62,8 @@ pub fn preset(name: &str) -> Option<Quality> {
                 max_masking_iterations: 2,
                 ..FitSettings::default()
             },
-            synth_clusters: 32,
-            synth_descriptor: 16,
-            synth_rotations: 48,
-            analytic: vec![AnalyticModel::WardIso, AnalyticModel::WardAniso],
+            synth: SynthSettings { clusters: 32, descriptor: 16, rotations: 48, neighbours: 24, passes: 1, ..SynthSettings::default() },
+            analytic: AnalyticSettings { models: vec![AnalyticModel::WardIso, AnalyticModel::WardAniso], clusters: 16, seed: 7 },
         },
         "balanced" => Quality {
             name: name.into(),
@@ -71,10 +74,8 @@ pub fn preset(name: &str) -> Option<Quality> {
             grid: 96,
             sim_camera_px: 224,
             fit: FitSettings::default(),
-            synth_clusters: 96,
-            synth_descriptor: 32,
-            synth_rotations: 96,
-            analytic: all,
+            synth: SynthSettings { clusters: 96, descriptor: 32, rotations: 96, neighbours: 48, passes: 2, ..SynthSettings::default() },
+            analytic: AnalyticSettings { models: all, clusters: 32, seed: 7 },
         },
         "best" => Quality {
             name: name.into(),
@@ -85,10 +86,16 @@ pub fn preset(name: &str) -> Option<Quality> {
             grid: 128,
             sim_camera_px: 320,
             fit: FitSettings { max_masking_iterations: 6, masking_tolerance: 1e-3, ..FitSettings::default() },
-            synth_clusters: 192,
-            synth_descriptor: 32,
-            synth_rotations: 384,
-            analytic: all,
+            synth: SynthSettings {
+                mode: SearchMode::Accelerated,
+                clusters: 192,
+                descriptor: 32,
+                rotations: 384,
+                neighbours: 96,
+                passes: 2,
+                ..SynthSettings::default()
+            },
+            analytic: AnalyticSettings { models: all, clusters: 64, seed: 7 },
         },
         _ => return None,
     };
@@ -105,6 +112,12 @@ pub struct Overrides {
     pub camera_px: Option<u32>,
     pub ndf_theta: Option<u32>,
     pub clusters: Option<u32>,
+    /// Skip microfacet synthesis (keep the partial NDFs).
+    #[serde(default)]
+    pub no_synthesis: bool,
+    /// Skip the analytic fits and the model choice.
+    #[serde(default)]
+    pub no_analytic: bool,
 }
 
 impl Quality {
@@ -135,7 +148,7 @@ impl Quality {
         }
         if let Some(v) = o.clusters {
             anyhow::ensure!((1..=100_000).contains(&v), "--clusters {v}: use 1..=100000");
-            self.synth_clusters = v;
+            self.synth.clusters = v;
         }
         Ok(self)
     }

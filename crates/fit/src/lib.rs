@@ -18,6 +18,7 @@
 //! `f = kd / pi + ks D(h) F_rel(i.h) / (4 sigma(i) sigma(o))` with
 //! `F_rel(1) = 1` (so `ks` is the specular albedo at normal incidence).
 
+pub mod analytic;
 pub mod calibrate;
 pub mod context;
 pub mod diffuse;
@@ -26,7 +27,9 @@ pub mod partial;
 pub mod points;
 pub mod pushpull;
 pub mod samples;
+pub mod select;
 pub mod settings;
+pub mod synth;
 
 pub use context::{FitContext, FitInputs};
 pub use ingest::Ingest;

@@ -1,0 +1,418 @@
+//! Analytic model fits: Phong, isotropic and anisotropic Ward, Lafortune,
+//! Cook-Torrance, Ashikhmin-Shirley, anisotropic GGX and He et al., each
+//! fitted to the measured samples.
+//!
+//! **Per cluster shape, per point amplitudes.** Points are clustered by
+//! their NDF (the descriptors of [`crate::synth::descriptor`]); each
+//! cluster gets one set of shape parameters (roughness, orientation,
+//! exponents, Fresnel index), and each point its own diffuse and specular
+//! amplitudes per channel, which enter every model linearly and are solved
+//! in closed form. The shape is found by Levenberg-Marquardt
+//! (`levenberg-marquardt` crate, with `scale_diag` off as the design notes
+//! found necessary for the rotation angle) on the samples of up to
+//! [`POINTS_PER_CLUSTER`] member points, with the amplitudes projected out
+//! at every evaluation (variable projection, Golub and Pereyra 1973).
+//!
+//! **Objective.** The cosine-weighted L2 error of Ngan et al. (2005),
+//! `sum ((f_model - rho) cos(theta_i))^2`, on the luminance.
+//!
+//! **Start.** Every shape starts from the slope moments of the cluster's
+//! mean NDF ([`shape::Moments`]), converted to each model's parameters, and
+//! the median fitted Fresnel index.
+
+pub mod shape;
+
+use std::time::Instant;
+
+use brdf::Brdf;
+use brdf::ndf::{MaskingOperator, TabulatedNdf};
+use brdf::params::AnalyticModel;
+use glam::Vec3;
+use levenberg_marquardt::{LeastSquaresProblem, LevenbergMarquardt};
+use nalgebra::{DMatrix, DVector, Dyn, Owned};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::context::FitContext;
+use crate::partial::{LUMA, Sample, point_flag};
+use crate::points::{PointMaps, gather};
+use crate::samples::SampleStore;
+use crate::settings::FitSettings;
+use crate::synth::cluster::kmeans;
+use crate::synth::descriptor::Core;
+use shape::Moments;
+
+/// Member points whose samples enter a cluster's shape fit.
+pub const POINTS_PER_CLUSTER: usize = 24;
+/// Samples per member point in the shape fit.
+const SAMPLES_PER_POINT: usize = 96;
+/// Samples per point for the per-point amplitudes and residuals.
+const AMPLITUDE_SAMPLES: usize = 256;
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct AnalyticSettings {
+    pub models: Vec<AnalyticModel>,
+    pub clusters: u32,
+    pub seed: u64,
+}
+
+impl Default for AnalyticSettings {
+    fn default() -> Self {
+        Self { models: AnalyticModel::ALL.to_vec(), clusters: 32, seed: 7 }
+    }
+}
+
+/// One model fitted over the grid.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ModelFit {
+    pub model: AnalyticModel,
+    /// `n_points x model.n_params()`.
+    pub params: Vec<f32>,
+    /// Per point: RMS cosine-weighted luminance residual.
+    pub residual: Vec<f32>,
+    pub seconds: f64,
+}
+
+/// What the fits share: clusters, each point's evaluation samples, its
+/// noise floor and the tabulated model's residual on the same samples.
+#[derive(Clone, Debug)]
+pub struct Evidence {
+    /// Cluster of each point (`u32::MAX` for points without specular).
+    pub cluster: Vec<u32>,
+    pub clusters: usize,
+    /// Per point: RMS of the samples' noise, cosine-weighted (the floor a
+    /// perfect model reaches).
+    pub noise: Vec<f32>,
+    /// Per point: the tabulated model's residual.
+    pub tabulated: Vec<f32>,
+    samples: Vec<Vec<Sample>>,
+    view: Vec<Vec3>,
+}
+
+fn lum(c: [f32; 3]) -> f32 {
+    LUMA[0] * c[0] + LUMA[1] * c[1] + LUMA[2] * c[2]
+}
+
+fn stride_sample(all: &[Sample], n: usize) -> Vec<Sample> {
+    if all.len() <= n {
+        return all.to_vec();
+    }
+    let step = all.len() as f32 / n as f32;
+    (0..n).map(|k| all[(k as f32 * step) as usize]).collect()
+}
+
+/// Gather evaluation samples, cluster the points and score the tabulated model.
+pub fn evidence(ctx: &FitContext, store: &SampleStore, maps: &PointMaps, fit: &FitSettings, settings: &AnalyticSettings) -> Evidence {
+    let n = maps.len();
+    let (samples, view): (Vec<Vec<Sample>>, Vec<Vec3>) = (0..n)
+        .into_par_iter()
+        .map(|p| {
+            let ps = gather(ctx, store, p, fit);
+            (stride_sample(&ps.samples, AMPLITUDE_SAMPLES), ps.o)
+        })
+        .unzip();
+    let eligible: Vec<usize> = (0..n).filter(|&p| maps.flags[p] & point_flag::NO_SPECULAR == 0).collect();
+    let mut cluster = vec![u32::MAX; n];
+    let mut clusters = 0;
+    if !eligible.is_empty() {
+        let core = Core::find(&maps.tables, &eligible, 32);
+        let dlen = core.len();
+        let desc: Vec<f32> = eligible
+            .par_iter()
+            .flat_map_iter(|&p| {
+                let mut d = vec![0.0; dlen];
+                core.describe(&maps.tables.get(p), 0.0, &mut d);
+                d
+            })
+            .collect();
+        clusters = (settings.clusters as usize).clamp(1, eligible.len());
+        let assign = kmeans(&desc, dlen, clusters, settings.seed);
+        for (k, &p) in eligible.iter().enumerate() {
+            cluster[p] = assign[k];
+        }
+    }
+    let noise: Vec<f32> = samples
+        .iter()
+        .map(|s| {
+            let ss: f64 = s.iter().map(|x| (x.var as f64) * (x.i.z as f64).powi(2)).sum();
+            (ss / s.len().max(1) as f64).sqrt() as f32
+        })
+        .collect();
+    let op = MaskingOperator::new(maps.tables.grid());
+    let tabulated: Vec<f32> = (0..n)
+        .into_par_iter()
+        .map(|p| {
+            let kd = Vec3::from(maps.kd[p]);
+            let ks = Vec3::from(maps.ks[p]);
+            let t = maps.tables.get(p);
+            let model: Box<dyn Brdf> = if maps.flags[p] & point_flag::NO_SPECULAR == 0 && t.integral_cos() > 0.0 {
+                Box::new(brdf::model::Microfacet {
+                    kd,
+                    ks,
+                    ndf: TabulatedNdf::new(t, &op),
+                    fresnel: brdf::fresnel::Fresnel::DielectricRelative { eta: maps.eta[p] },
+                })
+            } else {
+                Box::new(brdf::model::Lambert { albedo: kd })
+            };
+            rms_residual(&samples[p], view[p], |i, o| lum(model.eval(i, o).to_array()))
+        })
+        .collect();
+    Evidence { cluster, clusters, noise, tabulated, samples, view }
+}
+
+fn rms_residual(samples: &[Sample], o: Vec3, f: impl Fn(Vec3, Vec3) -> f32) -> f32 {
+    let ss: f64 = samples.iter().map(|x| (((f(x.i, o) - lum(x.rho)) * x.i.z) as f64).powi(2)).sum();
+    (ss / samples.len().max(1) as f64).sqrt() as f32
+}
+
+/// Closed-form non-negative amplitudes `rho ~ kd bd + ks bs` (weights
+/// `cos^2`) for the three channels; returns `(kd, ks)`.
+fn solve_amplitudes(bd: &[f32], bs: &[f32], samples: &[Sample]) -> ([f32; 3], [f32; 3]) {
+    let (mut dd, mut ds, mut ss) = (0.0f64, 0.0f64, 0.0f64);
+    let mut rd = [0.0f64; 3];
+    let mut rs = [0.0f64; 3];
+    for (k, x) in samples.iter().enumerate() {
+        let w = (x.i.z as f64).powi(2);
+        let (a, b) = (bd[k] as f64, bs[k] as f64);
+        dd += w * a * a;
+        ds += w * a * b;
+        ss += w * b * b;
+        for c in 0..3 {
+            rd[c] += w * a * x.rho[c] as f64;
+            rs[c] += w * b * x.rho[c] as f64;
+        }
+    }
+    let det = dd * ss - ds * ds;
+    let mut kd = [0.0f32; 3];
+    let mut ks = [0.0f32; 3];
+    for c in 0..3 {
+        let (mut a, mut b) = if det.abs() > 1e-12 * (dd * ss).max(1e-30) {
+            ((rd[c] * ss - rs[c] * ds) / det, (rs[c] * dd - rd[c] * ds) / det)
+        } else {
+            (if dd > 0.0 { rd[c] / dd } else { 0.0 }, 0.0)
+        };
+        if a < 0.0 {
+            a = 0.0;
+            b = if ss > 0.0 { (rs[c] / ss).max(0.0) } else { 0.0 };
+        }
+        if b < 0.0 {
+            b = 0.0;
+            a = if dd > 0.0 { (rd[c] / dd).max(0.0) } else { 0.0 };
+        }
+        kd[c] = if a.is_finite() { a as f32 } else { 0.0 };
+        ks[c] = if b.is_finite() { b as f32 } else { 0.0 };
+    }
+    (kd, ks)
+}
+
+/// Fit one point's amplitudes for a model with a given shape. Models whose
+/// diffuse or specular term is not linear in its amplitude (Ashikhmin-
+/// Shirley's `(1 - Rs)` factor and Schlick's Fresnel of `Rs`) are solved by
+/// a fixed-point iteration on the amplitude.
+fn point_amplitudes(model: AnalyticModel, shape: &[f32], samples: &[Sample], o: Vec3) -> (Vec<f32>, f32) {
+    let nonlinear = model == AnalyticModel::AshikhminShirley;
+    let mut ks_prev = [0.05f32; 3];
+    let mut kd = [0.0f32; 3];
+    let mut ks = [0.0f32; 3];
+    let mut bd = vec![0.0f32; samples.len()];
+    let mut bs = vec![0.0f32; samples.len()];
+    for _ in 0..if nonlinear { 4 } else { 1 } {
+        let k = lum(ks_prev).max(1e-4);
+        let mut p = vec![0.0f32, 0.0, 0.0, k, k, k];
+        p.extend_from_slice(shape);
+        let Some(sm) = model.build(&p) else { return (vec![0.0; model.n_params()], f32::INFINITY) };
+        let dm = if nonlinear {
+            p[0] = 1.0;
+            p[1] = 1.0;
+            p[2] = 1.0;
+            model.build(&p)
+        } else {
+            None
+        };
+        for (j, x) in samples.iter().enumerate() {
+            let s = sm.eval(x.i, o).x;
+            bs[j] = s / k;
+            bd[j] = match &dm {
+                Some(dm) => dm.eval(x.i, o).x - s,
+                None => std::f32::consts::FRAC_1_PI,
+            };
+        }
+        (kd, ks) = solve_amplitudes(&bd, &bs, samples);
+        ks_prev = ks;
+    }
+    let mut params = Vec::with_capacity(model.n_params());
+    params.extend_from_slice(&kd);
+    params.extend_from_slice(&ks);
+    params.extend_from_slice(shape);
+    let residual = match model.build(&params) {
+        Some(m) => rms_residual(samples, o, |i, o| lum(m.eval(i, o).to_array())),
+        None => f32::INFINITY,
+    };
+    // The linear diffuse coefficient of Ashikhmin-Shirley is rd (1 - Rs).
+    if nonlinear {
+        for c in 0..3 {
+            params[c] /= (1.0 - params[3 + c]).max(0.05);
+        }
+    }
+    (params, residual)
+}
+
+/// The shape fit of one cluster as a least-squares problem in `u`.
+struct ShapeProblem<'a> {
+    model: AnalyticModel,
+    points: Vec<(&'a [Sample], Vec3)>,
+    u: DVector<f64>,
+    n_res: usize,
+}
+
+impl ShapeProblem<'_> {
+    fn residuals_at(&self, u: &DVector<f64>) -> DVector<f64> {
+        let shape = shape::shape(self.model, u.as_slice());
+        let mut r = Vec::with_capacity(self.n_res);
+        let mut p = vec![0.0f32, 0.0, 0.0, 1.0, 1.0, 1.0];
+        p.extend_from_slice(&shape);
+        let linear = self.model.build(&p);
+        for &(samples, o) in &self.points {
+            if self.model == AnalyticModel::AshikhminShirley {
+                // Amplitudes by fixed-point iteration (see `point_amplitudes`).
+                let (params, _) = point_amplitudes(self.model, &shape, samples, o);
+                match self.model.build(&params) {
+                    Some(m) => r.extend(samples.iter().map(|x| ((lum(m.eval(x.i, o).to_array()) - lum(x.rho)) * x.i.z) as f64)),
+                    None => r.extend(samples.iter().map(|_| 1.0)),
+                }
+            } else if let Some(lm) = &linear {
+                let bs: Vec<f32> = samples.iter().map(|x| lm.eval(x.i, o).x).collect();
+                let bd = vec![std::f32::consts::FRAC_1_PI; samples.len()];
+                let (kd, ks) = solve_amplitudes(&bd, &bs, samples);
+                let (kd, ks) = (lum(kd), lum(ks));
+                for (j, x) in samples.iter().enumerate() {
+                    r.push(((kd * bd[j] + ks * bs[j] - lum(x.rho)) * x.i.z) as f64);
+                }
+            } else {
+                r.extend(samples.iter().map(|_| 1.0));
+            }
+        }
+        let mut v = DVector::from_vec(r);
+        v.iter_mut().for_each(|x| {
+            if !x.is_finite() {
+                *x = 1e3;
+            }
+        });
+        v
+    }
+}
+
+impl LeastSquaresProblem<f64, Dyn, Dyn> for ShapeProblem<'_> {
+    type ResidualStorage = Owned<f64, Dyn>;
+    type JacobianStorage = Owned<f64, Dyn, Dyn>;
+    type ParameterStorage = Owned<f64, Dyn>;
+
+    fn set_params(&mut self, u: &DVector<f64>) {
+        self.u = u.clone();
+    }
+
+    fn params(&self) -> DVector<f64> {
+        self.u.clone()
+    }
+
+    fn residuals(&self) -> Option<DVector<f64>> {
+        Some(self.residuals_at(&self.u))
+    }
+
+    /// Forward differences (step 1e-4 in the unconstrained parameters,
+    /// which are logarithms or angles: a relative step of 1e-4).
+    fn jacobian(&self) -> Option<DMatrix<f64>> {
+        let r0 = self.residuals_at(&self.u);
+        let mut j = DMatrix::zeros(r0.len(), self.u.len());
+        for k in 0..self.u.len() {
+            let mut u = self.u.clone();
+            let h = 1e-4;
+            u[k] += h;
+            let r = self.residuals_at(&u);
+            for m in 0..r0.len() {
+                j[(m, k)] = (r[m] - r0[m]) / h;
+            }
+        }
+        Some(j)
+    }
+}
+
+/// Fit `model` over the grid.
+pub fn fit_model(model: AnalyticModel, maps: &PointMaps, ev: &Evidence) -> ModelFit {
+    let t0 = Instant::now();
+    let n = maps.len();
+    let k = ev.clusters;
+    let (per_cluster, per_point) =
+        if shape::expensive(model) { (POINTS_PER_CLUSTER / 2, SAMPLES_PER_POINT / 2) } else { (POINTS_PER_CLUSTER, SAMPLES_PER_POINT) };
+    let mut members: Vec<Vec<usize>> = vec![Vec::new(); k];
+    for (p, &c) in ev.cluster.iter().enumerate() {
+        if (c as usize) < k {
+            members[c as usize].push(p);
+        }
+    }
+    let mut etas: Vec<f32> = maps.eta.clone();
+    etas.sort_by(|a, b| a.total_cmp(b));
+    let eta = etas.get(etas.len() / 2).copied().unwrap_or(1.5);
+    let shapes: Vec<Vec<f32>> = members
+        .par_iter()
+        .map(|m| {
+            let start = match m.first() {
+                Some(_) => {
+                    // Moments of the members' mean table.
+                    let g = maps.tables.grid();
+                    let mut mean = brdf::ndf::NdfTable::zeros(g);
+                    for &p in m.iter().take(64) {
+                        let t = maps.tables.get(p);
+                        for c in 0..g.len() {
+                            if t.coverage().get(c) {
+                                mean.values_mut()[c] += t.values()[c];
+                                mean.coverage_mut().set(c, true);
+                            }
+                        }
+                    }
+                    Moments::of(&mean)
+                }
+                None => Moments { alpha_x: 0.3, alpha_y: 0.3, angle_rad: 0.0 },
+            };
+            let u0 = shape::init(model, &start, eta);
+            let step = (m.len() as f32 / per_cluster as f32).max(1.0);
+            let chosen: Vec<usize> = (0..per_cluster.min(m.len())).map(|j| m[(j as f32 * step) as usize]).collect();
+            let subs: Vec<Vec<Sample>> = chosen.iter().map(|&p| stride_sample(&ev.samples[p], per_point)).collect();
+            if subs.iter().all(|s| s.is_empty()) {
+                return shape::shape(model, &u0);
+            }
+            let points: Vec<(&[Sample], Vec3)> = chosen.iter().zip(&subs).map(|(&p, s)| (s.as_slice(), ev.view[p])).collect();
+            let n_res = points.iter().map(|p| p.0.len()).sum();
+            let problem = ShapeProblem { model, points, u: DVector::from_vec(u0.clone()), n_res };
+            let (solved, report) = LevenbergMarquardt::new().with_scale_diag(false).with_patience(40).minimize(problem);
+            let u = if report.objective_function.is_finite() { solved.u.as_slice().to_vec() } else { u0 };
+            shape::shape(model, &u)
+        })
+        .collect();
+    let default_shape = shape::shape(model, &shape::init(model, &Moments { alpha_x: 0.3, alpha_y: 0.3, angle_rad: 0.0 }, eta));
+    let fits: Vec<(Vec<f32>, f32)> = (0..n)
+        .into_par_iter()
+        .map(|p| {
+            let c = ev.cluster[p] as usize;
+            let samples = if shape::expensive(model) { stride_sample(&ev.samples[p], 64) } else { ev.samples[p].clone() };
+            if c < k {
+                point_amplitudes(model, &shapes[c], &samples, ev.view[p])
+            } else {
+                // No specular: the diffuse albedo alone.
+                let mut params = maps.kd[p].to_vec();
+                params.extend_from_slice(&[0.0, 0.0, 0.0]);
+                params.extend_from_slice(&default_shape);
+                let r = model.build(&params).map_or(f32::INFINITY, |m| rms_residual(&samples, ev.view[p], |i, o| lum(m.eval(i, o).to_array())));
+                (params, r)
+            }
+        })
+        .collect();
+    let mut params = Vec::with_capacity(n * model.n_params());
+    let mut residual = Vec::with_capacity(n);
+    for (pp, r) in fits {
+        params.extend(pp.into_iter().map(|v| if v.is_finite() { v } else { 0.0 }));
+        residual.push(r);
+    }
+    ModelFit { model, params, residual, seconds: t0.elapsed().as_secs_f64() }
+}
