@@ -417,7 +417,8 @@ pub async fn run(req: CaptureRequest, rep: &mut Reporter, cancel: watch::Receive
         e_per_dn: s.e_per_dn,
         bit_depth: 12,
     };
-    let job = (!req.no_fit).then(|| FitJob::start(fit_inputs, q.fit.clone(), crate::output::stages(&q, &req.overrides)));
+    let job =
+        (!req.no_fit).then(|| FitJob::start(fit_inputs, q.fit.clone(), crate::output::stages(&q, &req.overrides)));
     if let Some(job) = &job {
         if resume {
             let n = tokio::task::block_in_place(|| crate::fitjob::replay(&root, cd.entries(), job))?;

@@ -71,6 +71,10 @@ pub fn conditions() -> Vec<Condition> {
         c("+x view, light +y", 50.0, 330.0, 45.0, 60.0),
         c("near normal, light high", 20.0, 45.0, 80.0, 135.0),
         c("from -y, light +y", 50.0, 270.0, 40.0, 90.0),
+        // Half vector about 25 degrees toward +x: just beyond the observed
+        // region (which ends near 13 degrees on that side), where the
+        // lobes still carry mass.
+        c("tilted +x, light overhead", 40.0, 0.0, 80.0, 0.0),
     ]
 }
 
@@ -111,6 +115,8 @@ pub struct ConditionDetail {
     /// Fraction of lit sample pixels whose half vector lies outside the
     /// point's observed region.
     pub unobserved_fraction: f64,
+    /// Per model: the relative RMS render error under this condition alone.
+    pub render_rel_rmse: BTreeMap<String, f64>,
 }
 
 /// The output of `refl eval --json`.
@@ -143,7 +149,7 @@ pub fn model_names(m: &Material) -> Vec<(String, ModelChoice)> {
     match m.ndf_kind {
         NdfKind::Synthesized => {
             v.push(("synthesized".to_string(), ModelChoice::Tabulated));
-            if m.partial_ndf.is_some() {
+            if m.partial.is_some() {
                 v.push(("partial".to_string(), ModelChoice::Partial));
             }
         }
@@ -161,7 +167,7 @@ pub fn model_names(m: &Material) -> Vec<(String, ModelChoice)> {
 
 /// Fraction of lit pixels whose half vector is outside the observed region.
 fn unobserved_fraction(m: &Material, c: &Condition, sample: &SampleArea) -> f64 {
-    let Some(partial) = m.partial_ndf.as_ref().or(m.ndf.as_ref()) else { return 0.0 };
+    let Some(partial) = m.partial.as_ref().map(|pf| &pf.tables).or(m.ndf.as_ref()) else { return 0.0 };
     let scene = scene_for(c, 48);
     let Light::Point { position_mm, .. } = scene.lights[0] else { return 0.0 };
     let (mut out, mut n) = (0usize, 0usize);
@@ -196,11 +202,11 @@ fn unobserved_fraction(m: &Material, c: &Condition, sample: &SampleArea) -> f64 
 fn ndf_errors(m: &Material, which: ModelChoice, truth: &dyn SvBrdf, max_points: usize) -> (Option<f64>, Option<f64>) {
     let set = match which {
         ModelChoice::Tabulated => m.ndf.as_ref(),
-        ModelChoice::Partial => m.partial_ndf.as_ref().or(m.ndf.as_ref()),
+        ModelChoice::Partial => m.partial.as_ref().map(|pf| &pf.tables).or(m.ndf.as_ref()),
         _ => None,
     };
     let Some(set) = set else { return (None, None) };
-    let observed_set = m.partial_ndf.as_ref().unwrap_or(set);
+    let observed_set = m.partial.as_ref().map_or(set, |pf| &pf.tables);
     let n = m.n_points();
     let stride = n.div_ceil(max_points.max(1)).max(1);
     let grid = set.grid();
@@ -328,6 +334,7 @@ pub fn evaluate(dir: &Path, opts: &EvalOptions, rep: &mut Reporter) -> Result<Ev
         .map(|c| ConditionDetail {
             name: c.name.clone(),
             unobserved_fraction: unobserved_fraction(&m, c, &info.geometry.sample),
+            render_rel_rmse: BTreeMap::new(),
         })
         .collect();
     let sample = info.geometry.sample;
@@ -351,6 +358,11 @@ pub fn evaluate(dir: &Path, opts: &EvalOptions, rep: &mut Reporter) -> Result<Ev
                 conds.iter().map(|c| render::render(&view, &sample, &scene_for(c, opts.render_px), 7)).collect();
             let pairs: Vec<(&Image, &Image)> = renders.iter().zip(tr.iter()).collect();
             score.render_rel_rmse = render::rel_rmse(&pairs);
+            for (d, pair) in ev.condition_detail.iter_mut().zip(&pairs) {
+                if let Some(e) = render::rel_rmse(std::slice::from_ref(pair)) {
+                    d.render_rel_rmse.insert(name.clone(), e);
+                }
+            }
             let (o, f) = ndf_errors(&m, choice, truth.as_ref(), opts.max_ndf_points);
             score.ndf_rel_l2_observed = o;
             score.ndf_rel_l2_full = f;

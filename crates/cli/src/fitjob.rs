@@ -42,8 +42,8 @@ pub struct FitOutcome {
     pub frames: u64,
     pub timings: FitTimings,
     pub settings: FitSettings,
-    /// The partial tables when synthesis replaced them in `maps`.
-    pub partial: Option<brdf::ndf::TableSet>,
+    /// The fit before synthesis, when synthesis replaced it in `maps`.
+    pub partial: Option<material::PartialFit>,
     pub synth: Option<fit::synth::SynthStats>,
     pub models: Vec<fit::analytic::ModelFit>,
     pub selection: Option<fit::select::Selection>,
@@ -125,13 +125,10 @@ fn run(inputs: FitInputs, settings: FitSettings, stages: Stages, rx: Receiver<Fr
             let t = Instant::now();
             let eligible: Vec<bool> = maps.flags.iter().map(|f| f & fit::point_flag::NO_SPECULAR == 0).collect();
             let out = fit::synth::synthesize(&maps.tables, &eligible, &ss);
-            let partial = std::mem::replace(&mut maps.tables, out.tables);
-            for (p, &k) in out.mass_factor.iter().enumerate() {
-                if k != 1.0 {
-                    maps.ks[p] = maps.ks[p].map(|v| v * k);
-                    maps.flags[p] |= fit::point_flag::SYNTHESIZED;
-                }
-            }
+            let partial =
+                material::PartialFit { tables: maps.tables.clone(), ks: maps.ks.clone(), eta: maps.eta.clone() };
+            let added: Vec<bool> = out.mass_factor.iter().map(|&k| k != 1.0).collect();
+            fit::points::refit_completed(&ctx, &store, &mut maps, &out.tables, &added, &settings, &op);
             timings.synthesis_s = t.elapsed().as_secs_f64();
             (Some(partial), Some(out.stats))
         }
@@ -151,7 +148,19 @@ fn run(inputs: FitInputs, settings: FitSettings, stages: Stages, rx: Receiver<Fr
         _ => (Vec::new(), None),
     };
     drop(store);
-    Ok(FitOutcome { ctx, maps, census, sample_bytes, frames, timings, settings, partial, synth: synth_stats, models, selection })
+    Ok(FitOutcome {
+        ctx,
+        maps,
+        census,
+        sample_bytes,
+        frames,
+        timings,
+        settings,
+        partial,
+        synth: synth_stats,
+        models,
+        selection,
+    })
 }
 
 /// Replay a stored capture's frames into a fit job (manifest order: dark

@@ -6,6 +6,7 @@ pub mod calib;
 pub mod capture;
 pub mod eval;
 pub mod fitjob;
+pub mod inspect;
 pub mod output;
 pub mod paths;
 pub mod presets;

@@ -44,14 +44,23 @@ pub fn material_from(out: &FitOutcome, info: &CaptureInfo, q: &Quality) -> Mater
         flags: maps.flags.clone(),
         ndf: Some(maps.tables.clone()),
         ndf_kind: if out.partial.is_some() { NdfKind::Synthesized } else { NdfKind::Partial },
-        partial_ndf: out.partial.clone(),
+        partial: out.partial.clone(),
         models: out
             .models
             .iter()
-            .map(|f| (f.model.name().to_string(), material::ModelMap { model: f.model, params: f.params.clone(), fit_seconds: f.seconds }))
+            .map(|f| {
+                (
+                    f.model.name().to_string(),
+                    material::ModelMap { model: f.model, params: f.params.clone(), fit_seconds: f.seconds },
+                )
+            })
             .collect(),
         choice: out.selection.as_ref().map(|s| material::ChoiceMap {
-            choice: s.choice.iter().map(|&c| material::Choice::from_u8(c).unwrap_or(material::Choice::Tabulated)).collect(),
+            choice: s
+                .choice
+                .iter()
+                .map(|&c| material::Choice::from_u8(c).unwrap_or(material::Choice::Tabulated))
+                .collect(),
             isotropic_model: s.isotropic,
             anisotropic_model: s.anisotropic,
         }),

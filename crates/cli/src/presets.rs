@@ -62,8 +62,19 @@ pub fn preset(name: &str) -> Option<Quality> {
                 max_masking_iterations: 2,
                 ..FitSettings::default()
             },
-            synth: SynthSettings { clusters: 32, descriptor: 16, rotations: 48, neighbours: 24, passes: 1, ..SynthSettings::default() },
-            analytic: AnalyticSettings { models: vec![AnalyticModel::WardIso, AnalyticModel::WardAniso], clusters: 16, seed: 7 },
+            synth: SynthSettings {
+                clusters: 32,
+                descriptor: 16,
+                rotations: 48,
+                neighbours: 24,
+                passes: 1,
+                ..SynthSettings::default()
+            },
+            analytic: AnalyticSettings {
+                models: vec![AnalyticModel::WardIso, AnalyticModel::WardAniso],
+                clusters: 16,
+                seed: 7,
+            },
         },
         "balanced" => Quality {
             name: name.into(),
@@ -74,7 +85,14 @@ pub fn preset(name: &str) -> Option<Quality> {
             grid: 96,
             sim_camera_px: 224,
             fit: FitSettings::default(),
-            synth: SynthSettings { clusters: 96, descriptor: 32, rotations: 96, neighbours: 48, passes: 2, ..SynthSettings::default() },
+            synth: SynthSettings {
+                clusters: 96,
+                descriptor: 32,
+                rotations: 96,
+                neighbours: 48,
+                passes: 2,
+                ..SynthSettings::default()
+            },
             analytic: AnalyticSettings { models: all, clusters: 32, seed: 7 },
         },
         "best" => Quality {

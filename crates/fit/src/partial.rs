@@ -374,6 +374,60 @@ fn fit_eta(table: &NdfTable, k_s: f32, o: Vec3, observed: &[f32], settings: &Fit
 
 /// Fit one point from its samples.
 pub fn fit_point(ps: &PointSamples, settings: &FitSettings, op: &MaskingOperator, s: &mut Scratch) -> PointFit {
+    fit_point_with(ps, settings, op, s, None)
+}
+
+/// Refit one point whose NDF was completed by synthesis: the shadowing
+/// term is recomputed from the completed NDF, the observed samples are
+/// splatted again with it and Fresnel refitted, and the synthesized cells
+/// are joined to the observed ones at the observed region's scale, so that
+/// `k_s`, `S` and `eta` all belong to the completed NDF (the talk's last
+/// step). Iterated until the table changes by less than the masking
+/// tolerance.
+pub fn refit_point(
+    ps: &PointSamples,
+    settings: &FitSettings,
+    op: &MaskingOperator,
+    s: &mut Scratch,
+    completed: &NdfTable,
+) -> PointFit {
+    fit_point_with(ps, settings, op, s, Some(completed))
+}
+
+/// The observed table (normalised over its region, with scale `k_s`)
+/// joined with `prior`'s cells outside that region, scaled so that the two
+/// agree in mass over the observed region; `None` without overlap.
+fn join(observed: &Splatted, prior: &NdfTable) -> Option<Splatted> {
+    let grid = prior.grid();
+    let np = grid.n_phi as usize;
+    let cov = observed.table.coverage();
+    let prior_mass: f32 =
+        (0..grid.len()).filter(|&c| cov.get(c)).map(|c| prior.values()[c] * grid.cos_measure(c / np)).sum();
+    if !(prior_mass > 0.0) {
+        return None;
+    }
+    let a = observed.k_s / prior_mass;
+    let mut table = NdfTable::zeros(grid);
+    for c in 0..grid.len() {
+        if cov.get(c) {
+            table.values_mut()[c] = observed.k_s * observed.table.values()[c];
+            table.coverage_mut().set(c, true);
+        } else if prior.coverage().get(c) {
+            table.values_mut()[c] = finite_or(a * prior.values()[c], 0.0).max(0.0);
+            table.coverage_mut().set(c, true);
+        }
+    }
+    let k_s = table.normalize();
+    Some(Splatted { table, k_s })
+}
+
+fn fit_point_with(
+    ps: &PointSamples,
+    settings: &FitSettings,
+    op: &MaskingOperator,
+    s: &mut Scratch,
+    prior: Option<&NdfTable>,
+) -> PointFit {
     let grid = settings.grid;
     let mut flags = 0u32;
     let mut stats =
@@ -500,41 +554,74 @@ pub fn fit_point(ps: &PointSamples, settings: &FitSettings, op: &MaskingOperator
         }
         (cur, converged, last)
     };
-    // A first estimate with F = 1 and one masking step is enough to fit eta.
-    let (first, mut converged, first_masking) =
-        iterate(None, None, if settings.fit_fresnel { 1 } else { settings.max_masking_iterations }, s, &mut stats);
-    let mut result = first;
-    let mut eta = DEFAULT_ETA;
-    if settings.fit_fresnel && result.k_s > 0.0 {
-        let observed = s.sum_w.clone();
-        match fit_eta(&result.table, result.k_s, ps.o, &observed, settings) {
-            Some(e) => {
-                eta = e;
-                let (again, c, _) =
-                    iterate(Some(e), first_masking.as_ref(), settings.max_masking_iterations, s, &mut stats);
-                result = again;
-                converged = c;
-            }
-            None => {
+    let (result, eta, converged) = match prior {
+        None => {
+            // A first estimate with F = 1 and one masking step is enough to fit eta.
+            let iterations = if settings.fit_fresnel { 1 } else { settings.max_masking_iterations };
+            let (first, converged, first_masking) = iterate(None, None, iterations, s, &mut stats);
+            let eta = if settings.fit_fresnel && first.k_s > 0.0 {
+                let observed = s.sum_w.clone();
+                fit_eta(&first.table, first.k_s, ps.o, &observed, settings)
+            } else {
+                None
+            };
+            if eta.is_none() {
                 flags |= point_flag::ETA_DEFAULT;
+            }
+            if settings.fit_fresnel && first.k_s > 0.0 {
                 let (again, c, _) =
-                    iterate(None, first_masking.as_ref(), settings.max_masking_iterations, s, &mut stats);
-                result = again;
-                converged = c;
+                    iterate(eta, first_masking.as_ref(), settings.max_masking_iterations, s, &mut stats);
+                (again, eta.unwrap_or(DEFAULT_ETA), c)
+            } else {
+                (first, DEFAULT_ETA, converged)
             }
         }
-    } else {
-        flags |= point_flag::ETA_DEFAULT;
-    }
+        Some(prior) => {
+            // Masking from the completed NDF, the observed samples splatted
+            // with it, eta refitted on their symmetric pairs, then the join;
+            // repeated while the joined table still changes.
+            let mut full = prior.clone();
+            let mut eta: Option<f32> = None;
+            let mut converged = false;
+            let mut out = None;
+            for round in 0..settings.max_masking_iterations.max(1) {
+                let m = op.projected_areas(&full);
+                let (mut obs, _, _) = iterate(eta, Some(&m), 0, s, &mut stats);
+                if round == 0 && settings.fit_fresnel && obs.k_s > 0.0 {
+                    let observed = s.sum_w.clone();
+                    eta = fit_eta(&obs.table, obs.k_s, ps.o, &observed, settings);
+                    if eta.is_some() {
+                        obs = iterate(eta, Some(&m), 0, s, &mut stats).0;
+                    }
+                }
+                let Some(next) = join(&obs, prior) else {
+                    out = Some(obs);
+                    break;
+                };
+                let change = next.table.rel_l2(&full, None).unwrap_or(0.0);
+                full = next.table.clone();
+                out = Some(next);
+                stats.iterations += 1;
+                if change < settings.masking_tolerance {
+                    converged = true;
+                    break;
+                }
+            }
+            if eta.is_none() {
+                flags |= point_flag::ETA_DEFAULT;
+            }
+            let result = out.unwrap_or(Splatted { table: NdfTable::zeros(grid), k_s: 0.0 });
+            (result, eta.unwrap_or(DEFAULT_ETA), converged)
+        }
+    };
     s.spec = spec;
     if !converged {
         flags |= point_flag::NOT_CONVERGED;
     }
-    let coverage_measure: f32 = (0..grid.len())
-        .filter(|&c| result.table.coverage().get(c))
-        .map(|c| grid.cos_measure(c / grid.n_phi as usize))
-        .sum::<f32>()
-        / std::f32::consts::PI;
+    // The observed region (a refit's table also covers synthesized cells).
+    let coverage_measure: f32 =
+        (0..grid.len()).filter(|&c| s.covered[c]).map(|c| grid.cos_measure(c / grid.n_phi as usize)).sum::<f32>()
+            / std::f32::consts::PI;
     stats.coverage = coverage_measure;
     if coverage_measure < 0.02 {
         flags |= point_flag::LOW_COVERAGE;

@@ -4,7 +4,7 @@ use brdf::ndf::{MaskingOperator, TableSet};
 use rayon::prelude::*;
 
 use crate::context::FitContext;
-use crate::partial::{PointSamples, PointStats, Sample, Scratch, fit_point};
+use crate::partial::{PointSamples, PointStats, Sample, Scratch, fit_point, point_flag, refit_point};
 use crate::samples::{SampleStore, flag};
 use crate::settings::FitSettings;
 
@@ -92,4 +92,36 @@ pub fn fit_points(ctx: &FitContext, store: &SampleStore, settings: &FitSettings,
         maps.stats.push(f.stats);
     }
     maps
+}
+
+/// After synthesis: refit the points whose NDF was completed (`added[p]`)
+/// from their samples and completed table ([`refit_point`]), replacing
+/// their maps' entries; the others keep their partial fit. Returns the
+/// number of points refitted.
+pub fn refit_completed(
+    ctx: &FitContext,
+    store: &SampleStore,
+    maps: &mut PointMaps,
+    completed: &TableSet,
+    added: &[bool],
+    settings: &FitSettings,
+    op: &MaskingOperator,
+) -> usize {
+    let todo: Vec<usize> = (0..maps.len()).filter(|&p| added.get(p).copied().unwrap_or(false)).collect();
+    let fits: Vec<_> = todo
+        .par_iter()
+        .map_init(Scratch::default, |scratch, &p| {
+            let ps = gather(ctx, store, p, settings);
+            refit_point(&ps, settings, op, scratch, &completed.get(p))
+        })
+        .collect();
+    for (&p, f) in todo.iter().zip(fits) {
+        maps.kd[p] = f.kd;
+        maps.ks[p] = f.ks;
+        maps.eta[p] = f.eta;
+        maps.flags[p] = f.flags | point_flag::SYNTHESIZED;
+        maps.tables.set(p, &f.table);
+        maps.stats[p] = f.stats;
+    }
+    todo.len()
 }

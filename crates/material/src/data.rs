@@ -68,6 +68,15 @@ pub struct ChoiceMap {
     pub anisotropic_model: AnalyticModel,
 }
 
+/// A point fit before synthesis: its partial tables, normalised over the
+/// observed region, with the `ks` and `eta` that belong to them.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PartialFit {
+    pub tables: TableSet,
+    pub ks: Vec<[f32; 3]>,
+    pub eta: Vec<f32>,
+}
+
 #[derive(Clone, Debug, PartialEq)]
 pub struct Material {
     pub name: String,
@@ -83,8 +92,8 @@ pub struct Material {
     pub flags: Vec<u32>,
     pub ndf: Option<TableSet>,
     pub ndf_kind: NdfKind,
-    /// The partial tables, kept beside synthesized ones for evaluation.
-    pub partial_ndf: Option<TableSet>,
+    /// The fit before synthesis, kept beside a synthesized one.
+    pub partial: Option<PartialFit>,
     pub models: BTreeMap<String, ModelMap>,
     pub choice: Option<ChoiceMap>,
     /// Where it came from: capture, settings, timings.

@@ -15,7 +15,7 @@ use serde::{Deserialize, Serialize};
 use setup::{PointGrid, SampleArea};
 use thiserror::Error;
 
-use crate::data::{Choice, ChoiceMap, Material, ModelMap, NdfKind};
+use crate::data::{Choice, ChoiceMap, Material, ModelMap, NdfKind, PartialFit};
 
 /// Version of the material format.
 pub const MATERIAL_FORMAT_VERSION: u32 = 1;
@@ -206,6 +206,7 @@ pub fn write(dir: &Path, m: &Material) -> Result<(), MaterialError> {
 }
 
 fn write_into(dir: &Path, m: &Material) -> Result<(), MaterialError> {
+    let n = m.n_points();
     let (w, h) = (m.grid.cols as usize, m.grid.rows as usize);
     let col = |c: usize, v: &[[f32; 3]]| FlatSamples::F32(v.iter().map(|x| x[c]).collect());
     let mut maps = vec![
@@ -218,6 +219,15 @@ fn write_into(dir: &Path, m: &Material) -> Result<(), MaterialError> {
         ("eta".into(), FlatSamples::F32(m.eta.clone())),
         ("flags".into(), FlatSamples::U32(m.flags.clone())),
     ];
+    if let Some(pf) = &m.partial {
+        if pf.ks.len() != n || pf.eta.len() != n || pf.tables.len() != n {
+            return Err(malformed(dir, "the partial fit's maps do not cover the grid"));
+        }
+        maps.push(("partial_ks.R".into(), col(0, &pf.ks)));
+        maps.push(("partial_ks.G".into(), col(1, &pf.ks)));
+        maps.push(("partial_ks.B".into(), col(2, &pf.ks)));
+        maps.push(("partial_eta".into(), FlatSamples::F32(pf.eta.clone())));
+    }
     if let Some(c) = &m.choice {
         maps.push(("choice".into(), FlatSamples::U32(c.choice.iter().map(|&x| x as u32).collect())));
     }
@@ -229,8 +239,8 @@ fn write_into(dir: &Path, m: &Material) -> Result<(), MaterialError> {
         }
         None => None,
     };
-    let partial_ndf = match &m.partial_ndf {
-        Some(t) => {
+    let partial_ndf = match &m.partial {
+        Some(PartialFit { tables: t, .. }) => {
             write_tables(&dir.join("ndf_partial.exr"), t)?;
             Some(NdfEntry { file: "ndf_partial.exr".into(), grid: t.grid(), kind: NdfKind::Partial })
         }
@@ -314,8 +324,12 @@ pub fn read(dir: &Path) -> Result<Material, MaterialError> {
         Some(e) => Some(read_tables(&dir.join(&e.file), e.grid, n)?),
         None => None,
     };
-    let partial_ndf = match &j.partial_ndf {
-        Some(e) => Some(read_tables(&dir.join(&e.file), e.grid, n)?),
+    let partial = match &j.partial_ndf {
+        Some(e) => Some(PartialFit {
+            tables: read_tables(&dir.join(&e.file), e.grid, n)?,
+            ks: tri(&mut ch, "partial_ks")?,
+            eta: take(&mp, &mut ch, "partial_eta", n)?,
+        }),
         None => None,
     };
     let mut models = BTreeMap::new();
@@ -365,7 +379,7 @@ pub fn read(dir: &Path) -> Result<Material, MaterialError> {
         flags,
         ndf,
         ndf_kind,
-        partial_ndf,
+        partial,
         models,
         choice,
         provenance: j.provenance,

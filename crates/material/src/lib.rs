@@ -10,7 +10,7 @@ pub mod io;
 pub mod point;
 pub mod view;
 
-pub use data::{Choice, ChoiceMap, Material, ModelMap, NdfKind};
+pub use data::{Choice, ChoiceMap, Material, ModelMap, NdfKind, PartialFit};
 pub use io::{MaterialError, read, write};
 pub use point::{PointMaterial, SvBrdf};
 pub use view::{MaterialView, ModelChoice};

@@ -55,7 +55,7 @@ impl MaterialView {
     pub fn new(material: Arc<Material>, choice: ModelChoice) -> Option<Self> {
         let needs_tables = match choice {
             ModelChoice::Tabulated | ModelChoice::Auto => material.ndf.is_some(),
-            ModelChoice::Partial => material.partial_ndf.is_some() || material.ndf.is_some(),
+            ModelChoice::Partial => material.partial.is_some() || material.ndf.is_some(),
             ModelChoice::Analytic(m) => {
                 if !material.models.contains_key(m.name()) {
                     return None;
@@ -69,7 +69,7 @@ impl MaterialView {
         if choice == ModelChoice::Auto && material.choice.is_none() {
             return None;
         }
-        let grid = material.ndf.as_ref().or(material.partial_ndf.as_ref()).map(|t| t.grid());
+        let grid = material.ndf.as_ref().or(material.partial.as_ref().map(|pf| &pf.tables)).map(|t| t.grid());
         let masking = if needs_tables { grid.map(|g| Arc::new(MaskingOperator::new(g))) } else { None };
         let name = format!("{} ({choice:?})", material.name);
         let cache = (0..material.n_points()).map(|_| OnceLock::new()).collect();
@@ -84,7 +84,7 @@ impl MaterialView {
         self.cache[p]
             .get_or_init(|| {
                 let set = if partial {
-                    self.material.partial_ndf.as_ref().or(self.material.ndf.as_ref())
+                    self.material.partial.as_ref().map(|pf| &pf.tables).or(self.material.ndf.as_ref())
                 } else {
                     self.material.ndf.as_ref()
                 }?;
@@ -102,12 +102,19 @@ impl MaterialView {
     pub fn point(&self, p: usize) -> PointMaterial {
         let m = &self.material;
         let kd = Vec3::from(m.kd[p]);
-        let ks = Vec3::from(m.ks[p]);
-        let tabulated = |partial: bool| match self.table(p, partial) {
-            Some(ndf) if ks.max_element() > 0.0 => {
-                PointMaterial::microfacet(kd, ks, ndf, Fresnel::DielectricRelative { eta: m.eta[p] })
+        let tabulated = |partial: bool| {
+            // The partial tables with the ks and eta fitted with them.
+            let (ks, eta) = match (&m.partial, partial) {
+                (Some(pf), true) => (pf.ks[p], pf.eta[p]),
+                _ => (m.ks[p], m.eta[p]),
+            };
+            let ks = Vec3::from(ks);
+            match self.table(p, partial) {
+                Some(ndf) if ks.max_element() > 0.0 => {
+                    PointMaterial::microfacet(kd, ks, ndf, Fresnel::DielectricRelative { eta })
+                }
+                _ => PointMaterial::Diffuse { kd },
             }
-            _ => PointMaterial::Diffuse { kd },
         };
         let analytic = |am: AnalyticModel| match m.models.get(am.name()).and_then(|mm| am.build(mm.point(p))) {
             Some(b) => PointMaterial::Model(b),

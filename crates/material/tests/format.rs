@@ -38,7 +38,11 @@ fn sample_material() -> Material {
         flags: (0..n as u32).collect(),
         ndf: Some(tables.clone()),
         ndf_kind: NdfKind::Synthesized,
-        partial_ndf: Some(tables),
+        partial: Some(material::PartialFit {
+            tables,
+            ks: (0..n).map(|k| [0.03, 0.03 + k as f32 * 0.001, 0.04]).collect(),
+            eta: vec![1.4; n],
+        }),
         models,
         choice: Some(ChoiceMap {
             choice: (0..n).map(|k| Choice::from_u8((k % 4) as u8).unwrap()).collect(),

@@ -38,6 +38,15 @@ enum Cmd {
         #[arg(long)]
         no_holdout: bool,
     },
+    /// Summarise a material: grid, flags, model choice and the spread of
+    /// every fitted parameter.
+    Inspect {
+        /// A material directory, or a capture directory holding `material/`.
+        dir: std::path::PathBuf,
+        /// Print one JSON object to stdout.
+        #[arg(long)]
+        json: bool,
+    },
     /// Start the emulated rig microcontroller on a pseudo-terminal and print its device path.
     SimMcu {
         /// Faults to inject (see `capture --help`).
@@ -83,6 +92,16 @@ fn main() -> ExitCode {
                 let opts = cli::eval::EvalOptions { render_px: px, holdout: !no_holdout, ..Default::default() };
                 let ev = tokio::task::block_in_place(|| cli::eval::evaluate(&dir, &opts, &mut rep))?;
                 println!("{}", if json { serde_json::to_string(&ev)? } else { serde_json::to_string_pretty(&ev)? });
+                Ok(())
+            }
+            Cmd::Inspect { dir, json } => {
+                let dir = if dir.join("material").is_dir() { dir.join("material") } else { dir };
+                let i = cli::inspect::inspect(&dir)?;
+                if json {
+                    println!("{}", serde_json::to_string(&i)?);
+                } else {
+                    cli::inspect::print(&i);
+                }
                 Ok(())
             }
             Cmd::SimMcu { faults, link, time_scale } => {

@@ -102,7 +102,13 @@ fn stride_sample(all: &[Sample], n: usize) -> Vec<Sample> {
 }
 
 /// Gather evaluation samples, cluster the points and score the tabulated model.
-pub fn evidence(ctx: &FitContext, store: &SampleStore, maps: &PointMaps, fit: &FitSettings, settings: &AnalyticSettings) -> Evidence {
+pub fn evidence(
+    ctx: &FitContext,
+    store: &SampleStore,
+    maps: &PointMaps,
+    fit: &FitSettings,
+    settings: &AnalyticSettings,
+) -> Evidence {
     let n = maps.len();
     let (samples, view): (Vec<Vec<Sample>>, Vec<Vec3>) = (0..n)
         .into_par_iter()
@@ -217,8 +223,9 @@ fn point_amplitudes(model: AnalyticModel, shape: &[f32], samples: &[Sample], o: 
     let mut ks = [0.0f32; 3];
     let mut bd = vec![0.0f32; samples.len()];
     let mut bs = vec![0.0f32; samples.len()];
+    let mut k = 1.0;
     for _ in 0..if nonlinear { 4 } else { 1 } {
-        let k = lum(ks_prev).max(1e-4);
+        k = lum(ks_prev).max(1e-4);
         let mut p = vec![0.0f32, 0.0, 0.0, k, k, k];
         p.extend_from_slice(shape);
         let Some(sm) = model.build(&p) else { return (vec![0.0; model.n_params()], f32::INFINITY) };
@@ -245,16 +252,18 @@ fn point_amplitudes(model: AnalyticModel, shape: &[f32], samples: &[Sample], o: 
     params.extend_from_slice(&kd);
     params.extend_from_slice(&ks);
     params.extend_from_slice(shape);
+    // Ashikhmin-Shirley's diffuse term is `rd (1 - Rs)` times a shape: the
+    // basis above carried `(1 - k)` with the luminance `k` of `Rs`, so the
+    // solved coefficient of channel c is `rd_c (1 - Rs_c) / (1 - k)`.
+    if nonlinear {
+        for c in 0..3 {
+            params[c] *= (1.0 - k) / (1.0 - params[3 + c]).max(0.05);
+        }
+    }
     let residual = match model.build(&params) {
         Some(m) => rms_residual(samples, o, |i, o| lum(m.eval(i, o).to_array())),
         None => f32::INFINITY,
     };
-    // The linear diffuse coefficient of Ashikhmin-Shirley is rd (1 - Rs).
-    if nonlinear {
-        for c in 0..3 {
-            params[c] /= (1.0 - params[3 + c]).max(0.05);
-        }
-    }
     (params, residual)
 }
 
@@ -278,7 +287,9 @@ impl ShapeProblem<'_> {
                 // Amplitudes by fixed-point iteration (see `point_amplitudes`).
                 let (params, _) = point_amplitudes(self.model, &shape, samples, o);
                 match self.model.build(&params) {
-                    Some(m) => r.extend(samples.iter().map(|x| ((lum(m.eval(x.i, o).to_array()) - lum(x.rho)) * x.i.z) as f64)),
+                    Some(m) => {
+                        r.extend(samples.iter().map(|x| ((lum(m.eval(x.i, o).to_array()) - lum(x.rho)) * x.i.z) as f64))
+                    }
                     None => r.extend(samples.iter().map(|_| 1.0)),
                 }
             } else if let Some(lm) = &linear {
@@ -343,8 +354,11 @@ pub fn fit_model(model: AnalyticModel, maps: &PointMaps, ev: &Evidence) -> Model
     let t0 = Instant::now();
     let n = maps.len();
     let k = ev.clusters;
-    let (per_cluster, per_point) =
-        if shape::expensive(model) { (POINTS_PER_CLUSTER / 2, SAMPLES_PER_POINT / 2) } else { (POINTS_PER_CLUSTER, SAMPLES_PER_POINT) };
+    let (per_cluster, per_point) = if shape::expensive(model) {
+        (POINTS_PER_CLUSTER / 2, SAMPLES_PER_POINT / 2)
+    } else {
+        (POINTS_PER_CLUSTER, SAMPLES_PER_POINT)
+    };
     let mut members: Vec<Vec<usize>> = vec![Vec::new(); k];
     for (p, &c) in ev.cluster.iter().enumerate() {
         if (c as usize) < k {
@@ -382,7 +396,8 @@ pub fn fit_model(model: AnalyticModel, maps: &PointMaps, ev: &Evidence) -> Model
             if subs.iter().all(|s| s.is_empty()) {
                 return shape::shape(model, &u0);
             }
-            let points: Vec<(&[Sample], Vec3)> = chosen.iter().zip(&subs).map(|(&p, s)| (s.as_slice(), ev.view[p])).collect();
+            let points: Vec<(&[Sample], Vec3)> =
+                chosen.iter().zip(&subs).map(|(&p, s)| (s.as_slice(), ev.view[p])).collect();
             let n_res = points.iter().map(|p| p.0.len()).sum();
             let problem = ShapeProblem { model, points, u: DVector::from_vec(u0.clone()), n_res };
             let (solved, report) = LevenbergMarquardt::new().with_scale_diag(false).with_patience(40).minimize(problem);
@@ -390,12 +405,14 @@ pub fn fit_model(model: AnalyticModel, maps: &PointMaps, ev: &Evidence) -> Model
             shape::shape(model, &u)
         })
         .collect();
-    let default_shape = shape::shape(model, &shape::init(model, &Moments { alpha_x: 0.3, alpha_y: 0.3, angle_rad: 0.0 }, eta));
+    let default_shape =
+        shape::shape(model, &shape::init(model, &Moments { alpha_x: 0.3, alpha_y: 0.3, angle_rad: 0.0 }, eta));
     let fits: Vec<(Vec<f32>, f32)> = (0..n)
         .into_par_iter()
         .map(|p| {
             let c = ev.cluster[p] as usize;
-            let samples = if shape::expensive(model) { stride_sample(&ev.samples[p], 64) } else { ev.samples[p].clone() };
+            let samples =
+                if shape::expensive(model) { stride_sample(&ev.samples[p], 64) } else { ev.samples[p].clone() };
             if c < k {
                 point_amplitudes(model, &shapes[c], &samples, ev.view[p])
             } else {
@@ -403,7 +420,9 @@ pub fn fit_model(model: AnalyticModel, maps: &PointMaps, ev: &Evidence) -> Model
                 let mut params = maps.kd[p].to_vec();
                 params.extend_from_slice(&[0.0, 0.0, 0.0]);
                 params.extend_from_slice(&default_shape);
-                let r = model.build(&params).map_or(f32::INFINITY, |m| rms_residual(&samples, ev.view[p], |i, o| lum(m.eval(i, o).to_array())));
+                let r = model
+                    .build(&params)
+                    .map_or(f32::INFINITY, |m| rms_residual(&samples, ev.view[p], |i, o| lum(m.eval(i, o).to_array())));
                 (params, r)
             }
         })

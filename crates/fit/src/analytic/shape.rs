@@ -1,8 +1,8 @@
 //! Per-model shape parameters: their unconstrained form for the optimiser,
 //! and starting values from the NDF's slope moments.
 
-use brdf::params::AnalyticModel;
 use brdf::ndf::NdfTable;
+use brdf::params::AnalyticModel;
 
 /// The second moments of an NDF's slopes, as an anisotropic Beckmann lobe:
 /// `Sigma = integral D cos (s s^T) dw` with slopes `s = (hx/hz, hy/hz)`, and
@@ -68,8 +68,9 @@ pub fn init(model: AnalyticModel, m: &Moments, eta: f32) -> Vec<f64> {
         AnalyticModel::WardAniso => vec![ln(m.alpha_x), ln(m.alpha_y), m.angle_rad as f64],
         AnalyticModel::Lafortune => {
             // (Cx ix ox + Cy iy oy + iz oz)^n with Cx = Cy = -1 is the Phong
-            // lobe around the mirror direction; n as Phong's exponent.
-            vec![0.0, 0.0, ln(exponent(m.alpha_iso()))]
+            // lobe around the mirror direction; n as Phong's exponent, and
+            // |C| = 0.95 (see `shape`).
+            vec![3.0, 3.0, ln(exponent(m.alpha_iso()))]
         }
         AnalyticModel::CookTorrance => vec![ln(m.alpha_iso()), eta_u],
         AnalyticModel::AshikhminShirley => vec![ln(exponent(m.alpha_x)), ln(exponent(m.alpha_y)), m.angle_rad as f64],
@@ -87,7 +88,16 @@ pub fn shape(model: AnalyticModel, u: &[f64]) -> Vec<f32> {
         AnalyticModel::Phong => vec![e(u[0])],
         AnalyticModel::WardIso => vec![e(u[0])],
         AnalyticModel::WardAniso => vec![e(u[0]), e(u[1]), u[2] as f32],
-        AnalyticModel::Lafortune => vec![-e(u[0]), -e(u[1]), 1.0, e(u[2])],
+        AnalyticModel::Lafortune => {
+            // Cz = 1 and |Cx|, |Cy| < 1: then `Cx ix ox + Cy iy oy + iz oz <= 1`
+            // everywhere and the lobe is largest near the mirror direction.
+            // Letting |C| exceed Cz lets the lobe grow as `(|C| / Cz)^n`
+            // towards grazing angles this rig never observes (its camera
+            // is at 45 degrees); fits that did so predicted renders ten
+            // times too bright there.
+            let s = |x: f64| (1.0 / (1.0 + (-x).exp())) as f32;
+            vec![-s(u[0]), -s(u[1]), 1.0, e(u[2])]
+        }
         AnalyticModel::CookTorrance => vec![e(u[0]), 1.0 + e(u[1])],
         AnalyticModel::AshikhminShirley => vec![e(u[0]), e(u[1]), u[2] as f32],
         AnalyticModel::GgxAniso => vec![e(u[0]), e(u[1]), u[2] as f32, 1.0 + e(u[3])],

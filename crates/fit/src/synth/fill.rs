@@ -22,7 +22,9 @@ pub fn complete(query: &NdfTable, matches: &[(Match, NdfTable)]) -> Option<NdfTa
     let g = query.grid();
     let rotated: Vec<(f32, f32, NdfTable)> = matches
         .iter()
-        .map(|(m, t)| (1.0 / (m.distance * m.distance + DISTANCE_FLOOR * DISTANCE_FLOOR), m.scale, t.rotated(m.shift * g.dphi())))
+        .map(|(m, t)| {
+            (1.0 / (m.distance * m.distance + DISTANCE_FLOOR * DISTANCE_FLOOR), m.scale, t.rotated(m.shift * g.dphi()))
+        })
         .collect();
     let mut out = query.clone();
     let mut added = false;

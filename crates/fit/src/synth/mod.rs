@@ -113,7 +113,8 @@ pub struct SynthOutput {
 
 fn coverage_measure(t: &NdfTable) -> f64 {
     let g = t.grid();
-    (0..g.len()).filter(|&c| t.coverage().get(c)).map(|c| g.cos_measure(c / g.n_phi as usize) as f64).sum::<f64>() / std::f64::consts::PI
+    (0..g.len()).filter(|&c| t.coverage().get(c)).map(|c| g.cos_measure(c / g.n_phi as usize) as f64).sum::<f64>()
+        / std::f64::consts::PI
 }
 
 /// Cluster mean tables: per cell the mean over members that observed it;
@@ -195,7 +196,8 @@ pub fn synthesize(input: &TableSet, eligible: &[bool], s: &SynthSettings) -> Syn
         let pruned = std::sync::atomic::AtomicU64::new(0);
         let matches: Vec<Vec<Match>> = match s.mode {
             SearchMode::BruteForce | SearchMode::Clustered => {
-                let spectra: Vec<CandidateSpectra> = candidates.par_iter().map(|t| CandidateSpectra::new(&plans, t)).collect();
+                let spectra: Vec<CandidateSpectra> =
+                    candidates.par_iter().map(|t| CandidateSpectra::new(&plans, t)).collect();
                 points
                     .par_iter()
                     .enumerate()
@@ -219,10 +221,8 @@ pub fn synthesize(input: &TableSet, eligible: &[bool], s: &SynthSettings) -> Syn
             SearchMode::Accelerated => {
                 let m_rot = plans.rotations;
                 let np = grid.n_phi as f32;
-                let masks: Vec<CoarseMask> = candidates
-                    .iter()
-                    .map(|t| coarse_mask(grid, t.coverage().words()))
-                    .collect();
+                let masks: Vec<CoarseMask> =
+                    candidates.iter().map(|t| coarse_mask(grid, t.coverage().words())).collect();
                 // Descriptor database: every cluster at every rotation.
                 let db: Vec<f32> = (0..candidates.len() * m_rot)
                     .into_par_iter()
@@ -318,7 +318,12 @@ fn nearest(db: &[f32], queries: &[f32], dim: usize, n: usize) -> Vec<Vec<usize>>
                 .par_chunks_exact(D)
                 .map(|q| {
                     let q: [f32; D] = std::array::from_fn(|j| q[j]);
-                    t.query(&q).nearest_n::<kiddo::SquaredEuclidean<f32>>(k).execute().into_iter().map(|r| r.item as usize).collect()
+                    t.query(&q)
+                        .nearest_n::<kiddo::SquaredEuclidean<f32>>(k)
+                        .execute()
+                        .into_iter()
+                        .map(|r| r.item as usize)
+                        .collect()
                 })
                 .collect(),
         )

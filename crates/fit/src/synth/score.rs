@@ -51,7 +51,14 @@ impl Plans {
         let np = grid.n_phi as usize;
         let m = rotations.max(np);
         let mut planner = RealFftPlanner::<f32>::new();
-        Self { grid, rotations: m, nf: np / 2 + 1, mf: m / 2 + 1, r2c: planner.plan_fft_forward(np), c2r: planner.plan_fft_inverse(m) }
+        Self {
+            grid,
+            rotations: m,
+            nf: np / 2 + 1,
+            mf: m / 2 + 1,
+            r2c: planner.plan_fft_forward(np),
+            c2r: planner.plan_fft_inverse(m),
+        }
     }
 
     fn spectra(&self, rows: &mut [f32], out: &mut [Complex32]) {
@@ -192,7 +199,8 @@ pub fn best_rotation(
     for s in 0..m {
         let get = |k: usize| scratch.out[k][s] * norm;
         let (a, b, cc, n, g) = (get(0), get(1), get(2), get(3), get(4));
-        if q.observed <= 0.0 || n < min_overlap * q.observed || g <= 0.01 * q.missing.max(1e-9) || b <= 0.0 || cc <= 0.0 {
+        if q.observed <= 0.0 || n < min_overlap * q.observed || g <= 0.01 * q.missing.max(1e-9) || b <= 0.0 || cc <= 0.0
+        {
             continue;
         }
         let rho2 = (a * a / (b * cc)).clamp(0.0, 1.0);
@@ -229,7 +237,14 @@ impl Flat {
 /// cells (for re-ranking a handful of candidates found by nearest
 /// neighbours). A fractional shift blends the two neighbouring sectors; a
 /// rotated cell counts as observed only if both sources were.
-pub fn score_at(grid: brdf::ndf::NdfGrid, query: &Flat, candidate: &Flat, shift: f32, index: usize, min_overlap: f32) -> Option<Match> {
+pub fn score_at(
+    grid: brdf::ndf::NdfGrid,
+    query: &Flat,
+    candidate: &Flat,
+    shift: f32,
+    index: usize,
+    min_overlap: f32,
+) -> Option<Match> {
     let np = grid.n_phi as usize;
     let s0f = shift.floor();
     let f = shift - s0f;
@@ -262,7 +277,8 @@ pub fn score_at(grid: brdf::ndf::NdfGrid, query: &Flat, candidate: &Flat, shift:
         observed += w * ro as f64;
         missing += w * rm as f64;
     }
-    if observed <= 0.0 || n < min_overlap as f64 * observed || gain <= 0.01 * missing.max(1e-9) || b <= 0.0 || c <= 0.0 {
+    if observed <= 0.0 || n < min_overlap as f64 * observed || gain <= 0.01 * missing.max(1e-9) || b <= 0.0 || c <= 0.0
+    {
         return None;
     }
     let rho2 = (a * a / (b * c)).clamp(0.0, 1.0);

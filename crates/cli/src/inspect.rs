@@ -1,0 +1,130 @@
+//! `refl inspect`: what a stored material holds, in numbers: its grid,
+//! NDF kind, point flags, model choice and the spread of every fitted
+//! parameter (5th, 50th and 95th percentiles over the points).
+
+use std::path::Path;
+
+use anyhow::Context;
+use material::{Choice, Material};
+use serde::Serialize;
+
+#[derive(Debug, Serialize)]
+pub struct Spread {
+    pub name: String,
+    pub p05: f32,
+    pub p50: f32,
+    pub p95: f32,
+}
+
+#[derive(Debug, Serialize)]
+pub struct ModelSummary {
+    pub model: String,
+    pub fit_seconds: f64,
+    pub params: Vec<Spread>,
+}
+
+#[derive(Debug, Serialize)]
+pub struct Inspection {
+    pub name: String,
+    pub points: usize,
+    pub grid: [u32; 2],
+    pub ndf: Option<String>,
+    /// Points carrying each fit flag.
+    pub flags: Vec<(String, usize)>,
+    /// Points per model class, when the material has a choice map.
+    pub choice: Vec<(String, usize)>,
+    pub kd: Vec<Spread>,
+    pub ks: Vec<Spread>,
+    pub eta: Spread,
+    pub models: Vec<ModelSummary>,
+}
+
+fn spread(name: &str, values: impl Iterator<Item = f32>) -> Spread {
+    let mut v: Vec<f32> = values.filter(|x| x.is_finite()).collect();
+    v.sort_by(f32::total_cmp);
+    let at = |q: f32| if v.is_empty() { f32::NAN } else { v[((v.len() - 1) as f32 * q).round() as usize] };
+    Spread { name: name.to_string(), p05: at(0.05), p50: at(0.5), p95: at(0.95) }
+}
+
+pub fn inspect(dir: &Path) -> anyhow::Result<Inspection> {
+    let m: Material = material::io::read(dir).with_context(|| format!("reading the material in {}", dir.display()))?;
+    let n = m.n_points();
+    let flags = fit::partial::point_flag::NAMES
+        .iter()
+        .map(|&(bit, name)| (name.to_string(), m.flags.iter().filter(|&&f| f & bit != 0).count()))
+        .filter(|(_, c)| *c > 0)
+        .collect();
+    let choice = match &m.choice {
+        Some(c) => [
+            ("diffuse".to_string(), Choice::Diffuse),
+            (c.isotropic_model.name().to_string(), Choice::Isotropic),
+            (c.anisotropic_model.name().to_string(), Choice::Anisotropic),
+            ("tabulated".to_string(), Choice::Tabulated),
+        ]
+        .into_iter()
+        .map(|(name, k)| (name, c.choice.iter().filter(|&&x| x == k).count()))
+        .collect(),
+        None => Vec::new(),
+    };
+    let rgb = |v: &[[f32; 3]], prefix: &str| -> Vec<Spread> {
+        ["r", "g", "b"]
+            .iter()
+            .enumerate()
+            .map(|(c, ch)| spread(&format!("{prefix}_{ch}"), v.iter().map(|x| x[c])))
+            .collect()
+    };
+    let models = m
+        .models
+        .values()
+        .map(|mm| {
+            let k = mm.model.n_params();
+            let params = mm
+                .model
+                .param_names()
+                .iter()
+                .enumerate()
+                .map(|(j, name)| spread(name, (0..n).map(|p| mm.params[p * k + j])))
+                .collect();
+            ModelSummary { model: mm.model.name().to_string(), fit_seconds: mm.fit_seconds, params }
+        })
+        .collect();
+    Ok(Inspection {
+        name: m.name.clone(),
+        points: n,
+        grid: [m.grid.cols, m.grid.rows],
+        ndf: m.ndf.as_ref().map(|_| format!("{:?}", m.ndf_kind).to_lowercase()),
+        flags,
+        choice,
+        kd: rgb(&m.kd, "kd"),
+        ks: rgb(&m.ks, "ks"),
+        eta: spread("eta", m.eta.iter().copied()),
+        models,
+    })
+}
+
+/// Human-readable form.
+pub fn print(i: &Inspection) {
+    println!(
+        "{}: {} points ({} x {}), NDF: {}",
+        i.name,
+        i.points,
+        i.grid[0],
+        i.grid[1],
+        i.ndf.as_deref().unwrap_or("none")
+    );
+    if !i.flags.is_empty() {
+        let f: Vec<String> = i.flags.iter().map(|(n, c)| format!("{n} {c}")).collect();
+        println!("flags: {}", f.join(", "));
+    }
+    if !i.choice.is_empty() {
+        let f: Vec<String> = i.choice.iter().map(|(n, c)| format!("{n} {c}")).collect();
+        println!("model choice: {}", f.join(", "));
+    }
+    let row = |s: &Spread| println!("  {:<12} {:>10.4} {:>10.4} {:>10.4}", s.name, s.p05, s.p50, s.p95);
+    println!("  {:<12} {:>10} {:>10} {:>10}", "", "p05", "median", "p95");
+    i.kd.iter().chain(&i.ks).chain(std::iter::once(&i.eta)).for_each(row);
+    for m in &i.models {
+        println!("{} (fitted in {:.1} s)", m.model, m.fit_seconds);
+        m.params.iter().for_each(row);
+    }
+}

@@ -1,0 +1,178 @@
+//! Microfacet synthesis against ground truth on simulated captures.
+//!
+//! The error is the relative L2 distance between recovered and true NDF
+//! tables in the table's cosine measure, pooled over every point with
+//! specular (as `refl eval` reports it), split into the cells the partial
+//! tables observed and the cells they did not (which synthesis supplies).
+//! The partial tables are empty outside their coverage, so their error
+//! there is 1.
+//!
+//! - `satin` varies in orientation across the sample, so other points'
+//!   rotated NDFs hold what one view misses: synthesis must cut the
+//!   missing-region error by at least 15% (measured: 1.00 to 0.75 at this
+//!   size) and lower the whole-hemisphere error.
+//! - `brushed-metal` has one narrow lobe whose observed part this small,
+//!   sparse capture resolves poorly (observed-region error 0.72), so the
+//!   examples synthesis draws on are poor too: measured 1.00 to 0.88 in the
+//!   missing region. The test holds the line at a 10% cut and a lower
+//!   whole-hemisphere error; a denser capture is what improves it.
+//! - `ward` has one orientation everywhere; the only help is a point's
+//!   neighbours turned by 180 degrees (the lobe is centrally symmetric),
+//!   and synthesis must not make the error worse by more than 2%.
+//! - The accelerated search against brute force on the same small input:
+//!   its missing-region error within 10% of brute force's, and both well
+//!   below the partial tables'.
+
+#[path = "support/simfit.rs"]
+mod simfit;
+
+use brdf::ndf::{MaskingOperator, NdfTable, TableSet};
+use fit::FitSettings;
+use fit::synth::{SearchMode, SynthSettings, synthesize};
+use simfit::{Fitted, Scenario, run, true_table};
+
+fn scenario(name: &str) -> Scenario {
+    Scenario {
+        material: sim::materials::builtin(name).unwrap(),
+        camera_px: 128,
+        grid: 20,
+        steps: 48,
+        led_stride: 1,
+        exposures_us: vec![20_000],
+        seed: 5,
+    }
+}
+
+/// Pooled relative L2 error of `tables` against the truth.
+struct NdfError {
+    /// Over the cells the partial tables observed.
+    observed: f64,
+    /// Over the cells they did not: what synthesis has to supply.
+    missing: f64,
+    /// Over the whole hemisphere.
+    full: f64,
+}
+
+fn ndf_error(s: &Scenario, f: &Fitted, tables: &TableSet) -> NdfError {
+    let (mut no, mut dobs, mut nm, mut dm, mut nf, mut df) = (0.0f64, 0.0f64, 0.0f64, 0.0f64, 0.0f64, 0.0f64);
+    let g = f.settings.grid;
+    for p in 0..f.maps.len() {
+        if f.maps.flags[p] & fit::point_flag::NO_SPECULAR != 0 {
+            continue;
+        }
+        let Some(t) = true_table(s.material.as_ref(), f, p) else { continue };
+        let est = tables.get(p);
+        let obs = f.maps.tables.get(p);
+        for c in 0..g.len() {
+            let w = g.cos_measure(c / g.n_phi as usize) as f64;
+            let (a, b) = (est.values()[c] as f64, t.values()[c] as f64);
+            nf += w * (a - b) * (a - b);
+            df += w * b * b;
+            if obs.coverage().get(c) {
+                no += w * (a - b) * (a - b);
+                dobs += w * b * b;
+            } else {
+                nm += w * (a - b) * (a - b);
+                dm += w * b * b;
+            }
+        }
+    }
+    NdfError { observed: (no / dobs).sqrt(), missing: (nm / dm).sqrt(), full: (nf / df).sqrt() }
+}
+
+fn eligible(f: &Fitted) -> Vec<bool> {
+    f.maps.flags.iter().map(|fl| fl & fit::point_flag::NO_SPECULAR == 0).collect()
+}
+
+/// The synthesized tables after the refit with the completed NDF.
+fn synthesized(f: &Fitted, settings: &SynthSettings) -> TableSet {
+    let out = synthesize(&f.maps.tables, &eligible(f), settings);
+    let added: Vec<bool> = out.mass_factor.iter().map(|&k| k != 1.0).collect();
+    let mut maps = f.maps.clone();
+    let op = MaskingOperator::new(f.settings.grid);
+    fit::points::refit_completed(&f.ctx, &f.store, &mut maps, &out.tables, &added, &f.settings, &op);
+    maps.tables
+}
+
+fn small_settings(mode: SearchMode) -> SynthSettings {
+    SynthSettings { mode, clusters: 24, ..SynthSettings::default() }
+}
+
+fn reduction(name: &str) -> (NdfError, NdfError) {
+    let s = scenario(name);
+    let f = run(&s, FitSettings::default());
+    let p = ndf_error(&s, &f, &f.maps.tables);
+    let q = ndf_error(&s, &f, &synthesized(&f, &small_settings(SearchMode::Accelerated)));
+    eprintln!(
+        "{name}: NDF error (observed, missing, full): partial {:.4} {:.4} {:.4}; synthesized {:.4} {:.4} {:.4}",
+        p.observed, p.missing, p.full, q.observed, q.missing, q.full
+    );
+    (p, q)
+}
+
+#[test]
+fn synthesis_completes_satin() {
+    let (p, q) = reduction("satin");
+    assert!(
+        q.missing < 0.85 * p.missing,
+        "satin missing region: synthesized {:.4} vs partial {:.4}",
+        q.missing,
+        p.missing
+    );
+    assert!(q.full < p.full, "satin: synthesized {:.4} vs partial {:.4}", q.full, p.full);
+}
+
+#[test]
+fn synthesis_completes_brushed_metal() {
+    let (p, q) = reduction("brushed-metal");
+    assert!(
+        q.missing < 0.90 * p.missing,
+        "brushed-metal missing region: synthesized {:.4} vs partial {:.4}",
+        q.missing,
+        p.missing
+    );
+    assert!(q.full < p.full, "brushed-metal: synthesized {:.4} vs partial {:.4}", q.full, p.full);
+}
+
+#[test]
+fn synthesis_does_not_harm_a_single_orientation() {
+    let (p, q) = reduction("ward");
+    assert!(q.full <= 1.02 * p.full, "ward: synthesized {:.4} vs partial {:.4}", q.full, p.full);
+}
+
+#[test]
+fn accelerated_search_agrees_with_brute_force() {
+    let s = Scenario { grid: 14, ..scenario("satin") };
+    let f = run(&s, FitSettings::default());
+    let p = ndf_error(&s, &f, &f.maps.tables);
+    let brute = synthesized(&f, &small_settings(SearchMode::BruteForce));
+    let fast = synthesized(&f, &small_settings(SearchMode::Accelerated));
+    let eb = ndf_error(&s, &f, &brute);
+    let ea = ndf_error(&s, &f, &fast);
+    eprintln!("missing region: partial {:.4}, brute force {:.4}, accelerated {:.4}", p.missing, eb.missing, ea.missing);
+    assert!(eb.missing < 0.85 * p.missing, "brute force {:.4} vs partial {:.4}", eb.missing, p.missing);
+    assert!(ea.missing < 1.10 * eb.missing, "accelerated {:.4} vs brute force {:.4}", ea.missing, eb.missing);
+    // The two complete the same cells for most points.
+    let same = (0..brute.len())
+        .filter(|&p| {
+            let (a, b) = (brute.get(p), fast.get(p));
+            let (ca, cb) = (a.coverage().count(), b.coverage().count());
+            ca.abs_diff(cb) as f32 <= 0.1 * ca.max(1) as f32
+        })
+        .count();
+    assert!(same as f32 >= 0.8 * brute.len() as f32, "{same} of {} points covered alike", brute.len());
+}
+
+/// A table with nothing observed stays empty (and finite) through synthesis.
+#[test]
+fn points_without_specular_are_left_alone() {
+    let s = Scenario { grid: 8, ..scenario("satin") };
+    let f = run(&s, FitSettings::default());
+    let mut el = eligible(&f);
+    el[0] = false;
+    let out = synthesize(&f.maps.tables, &el, &small_settings(SearchMode::Accelerated));
+    assert_eq!(out.mass_factor[0], 1.0);
+    let t: NdfTable = out.tables.get(0);
+    assert_eq!(t.values(), f.maps.tables.get(0).values());
+    assert!(out.tables.get(1).values().iter().all(|v| v.is_finite()));
+}
