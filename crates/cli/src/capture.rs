@@ -305,8 +305,8 @@ pub struct Summary {
 /// Run a capture request to the end (or to an interruption).
 pub async fn run(req: CaptureRequest, rep: &mut Reporter, cancel: watch::Receiver<bool>) -> Result<Summary> {
     let started = Instant::now();
-    let (rf, rig_source) = RigFile::load(req.rig_file.as_deref())?;
-    let faults = FaultSpec::parse(&req.sim_faults).map_err(|e| anyhow!("--sim-faults: {e}"))?;
+    let (rf, rig_source) = RigFile::load(req.rig_file.as_deref()).map_err(crate::usage)?;
+    let faults = FaultSpec::parse(&req.sim_faults).map_err(|e| crate::usage(anyhow!("--sim-faults: {e}")))?;
     let resume = req.resume.is_some();
     // Everything about the capture comes from the request, or from
     // capture.json when resuming.
@@ -325,24 +325,25 @@ pub async fn run(req: CaptureRequest, rep: &mut Reporter, cancel: watch::Receive
         rep.stage("resume", format!("{} of {} shots already stored and verified", done.len(), info.plan.shots().len()));
         (Some(cd), info, q, done)
     } else {
-        let q = quality(&req)?;
-        let sample = req.sample.clone().ok_or_else(|| anyhow!("name the sample with --sample NAME"))?;
-        let out = req.out.clone().ok_or_else(|| anyhow!("choose the capture directory with --out DIR"))?;
+        let q = quality(&req).map_err(crate::usage)?;
+        let sample = req.sample.clone().ok_or_else(|| crate::usage(anyhow!("name the sample with --sample NAME")))?;
+        let out =
+            req.out.clone().ok_or_else(|| crate::usage(anyhow!("choose the capture directory with --out DIR")))?;
         if out.join(CaptureDir::INFO).exists() {
             let other = CaptureDir::read_info(&out)?;
-            bail!(
+            return Err(crate::usage(anyhow!(
                 "{} already holds a capture of '{}' made {}; choose another --out, or continue it with --resume {}",
                 out.display(),
                 other.sample,
                 other.created_utc,
                 out.display()
-            );
+            )));
         }
         if rf.kind == RigKind::Sim {
-            sim_material(&sample, req.sim_material.as_deref())?;
+            sim_material(&sample, req.sim_material.as_deref()).map_err(crate::usage)?;
         }
         let geometry = geometry_for(&rf, &q);
-        let plan = plan_for(&q, &geometry)?;
+        let plan = plan_for(&q, &geometry).map_err(crate::usage)?;
         let info = CaptureInfo {
             format_version: store::CAPTURE_FORMAT_VERSION,
             sample: sample.clone(),
@@ -469,6 +470,15 @@ pub async fn run(req: CaptureRequest, rep: &mut Reporter, cancel: watch::Receive
         Some(job) => Some(output::finish_fit(job, &info, &q, &root, rep, &mut report).await?),
         None => None,
     };
+    if let Some(mdir) = &material_dir {
+        let t = Instant::now();
+        let files = tokio::task::block_in_place(|| output::write_renders(&root, mdir, &info, rep))?;
+        report.time("renders_s", t.elapsed().as_secs_f64());
+        rep.stage(
+            "render",
+            format!("{} files in {} ({:.1} s)", files.len(), root.join("renders").display(), t.elapsed().as_secs_f64()),
+        );
+    }
     report.time("total_s", started.elapsed().as_secs_f64());
     report.peak_memory_mb = report::peak_memory_mb();
     report.material = material_dir.as_ref().map(|p| p.display().to_string());

@@ -79,7 +79,7 @@ pub fn conditions() -> Vec<Condition> {
 }
 
 /// Distance of the evaluation camera and lights from the sample centre.
-const EVAL_DISTANCE_MM: f32 = 400.0;
+pub const EVAL_DISTANCE_MM: f32 = 400.0;
 
 pub fn scene_for(c: &Condition, px: u32) -> Scene {
     let light = render::scene::dir_from(c.light_elevation_deg.to_radians(), c.light_azimuth_deg.to_radians());

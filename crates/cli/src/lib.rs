@@ -11,6 +11,7 @@ pub mod output;
 pub mod paths;
 pub mod presets;
 pub mod progress;
+pub mod renders;
 pub mod report;
 pub mod rigfile;
 pub mod session;
@@ -23,6 +24,25 @@ pub mod exit {
     pub const FAILED: i32 = 1;
     /// Interrupted by the operator (Ctrl-C, SIGTERM).
     pub const INTERRUPTED: i32 = 130;
+}
+
+/// A request that cannot be carried out as given (bad arguments, an
+/// unknown sample, an occupied output directory): the binaries exit with
+/// [`exit::USAGE`] and nothing has been touched.
+#[derive(Debug)]
+pub struct Usage(pub String);
+
+impl std::fmt::Display for Usage {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for Usage {}
+
+/// Mark an error as a [`Usage`] error (keeping its whole message).
+pub fn usage(e: anyhow::Error) -> anyhow::Error {
+    anyhow::Error::new(Usage(format!("{e:#}")))
 }
 
 /// Install the log subscriber: `RUST_LOG` filters, `info` by default, to stderr.

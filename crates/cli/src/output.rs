@@ -148,6 +148,25 @@ pub async fn finish_fit(
     Ok(dir)
 }
 
+/// Side of the preview renders, in pixels.
+pub const PREVIEW_PX: u32 = 160;
+
+/// Write the capture's `renders/` from its material (ground truth beside
+/// it for simulated captures).
+pub fn write_renders(root: &Path, material_dir: &Path, info: &CaptureInfo, rep: &mut Reporter) -> Result<Vec<PathBuf>> {
+    let m = std::sync::Arc::new(
+        material::read(material_dir).with_context(|| format!("reading {}", material_dir.display()))?,
+    );
+    let truth = match &info.simulated {
+        Some(s) => Some(crate::capture::sim_material(
+            s.material.as_deref().unwrap_or(&info.sample),
+            s.material_dir.as_deref().map(Path::new),
+        )?),
+        None => None,
+    };
+    crate::renders::write_previews(&root.join("renders"), m, truth, PREVIEW_PX, rep)
+}
+
 pub fn write_report(root: &Path, report: &Report) -> Result<()> {
     let p = root.join("report.json");
     let tmp = root.join(".report.json.tmp");
@@ -183,6 +202,10 @@ pub async fn refit(dir: &Path, q_override: Option<Quality>, rep: &mut Reporter) 
     rep.stage("fit", format!("{n} stored frames read in {:.1} s", t.elapsed().as_secs_f64()));
     let mut report = Report { sample: info.sample.clone(), quality: q.name.clone(), ..Report::default() };
     let m = finish_fit(job, &info, &q, dir, rep, &mut report).await?;
+    let t = Instant::now();
+    let files = tokio::task::block_in_place(|| write_renders(dir, &m, &info, rep))?;
+    report.time("renders_s", t.elapsed().as_secs_f64());
+    rep.stage("render", format!("{} files in {}", files.len(), dir.join("renders").display()));
     report.peak_memory_mb = crate::report::peak_memory_mb();
     report.material = Some(m.display().to_string());
     write_report(dir, &report)?;

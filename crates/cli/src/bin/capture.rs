@@ -140,9 +140,15 @@ fn main() -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            let interrupted = e.downcast_ref::<Interrupted>().is_some();
+            let code = if e.downcast_ref::<Interrupted>().is_some() {
+                cli::exit::INTERRUPTED
+            } else if e.downcast_ref::<cli::Usage>().is_some() {
+                cli::exit::USAGE
+            } else {
+                cli::exit::FAILED
+            };
             rep.emit(cli::progress::Event::Error { message: format!("{e:#}") });
-            ExitCode::from(if interrupted { cli::exit::INTERRUPTED } else { cli::exit::FAILED } as u8)
+            ExitCode::from(code as u8)
         }
     }
 }

@@ -38,6 +38,28 @@ enum Cmd {
         #[arg(long)]
         no_holdout: bool,
     },
+    /// Render a fitted material with one of its models to an image
+    /// (`.exr`: linear radiance; otherwise PNG at automatic exposure).
+    Render {
+        /// A material directory, or a capture directory holding `material/`.
+        dir: std::path::PathBuf,
+        /// Model: tabulated (synthesized when synthesis ran), partial, auto,
+        /// or an analytic fit's name (ward_iso, ward_aniso, ggx_aniso, ...).
+        #[arg(long, default_value = "tabulated")]
+        model: String,
+        /// Lighting: point:ELEV,AZ, directional:ELEV,AZ or sky:ELEV,AZ (degrees).
+        #[arg(long, default_value = "point:50,250")]
+        light: String,
+        /// Camera: POLAR,AZIMUTH in degrees, looking at the sample centre.
+        #[arg(long, default_value = "35,90")]
+        camera: String,
+        /// Image side in pixels.
+        #[arg(long, default_value_t = 256)]
+        px: u32,
+        /// Output file.
+        #[arg(long, short)]
+        out: std::path::PathBuf,
+    },
     /// Summarise a material: grid, flags, model choice and the spread of
     /// every fitted parameter.
     Inspect {
@@ -92,6 +114,21 @@ fn main() -> ExitCode {
                 let opts = cli::eval::EvalOptions { render_px: px, holdout: !no_holdout, ..Default::default() };
                 let ev = tokio::task::block_in_place(|| cli::eval::evaluate(&dir, &opts, &mut rep))?;
                 println!("{}", if json { serde_json::to_string(&ev)? } else { serde_json::to_string_pretty(&ev)? });
+                Ok(())
+            }
+            Cmd::Render { dir, model, light, camera, px, out } => {
+                let dir = if dir.join("material").is_dir() { dir.join("material") } else { dir };
+                if !(8..=4096).contains(&px) {
+                    anyhow::bail!("--px {px}: expected 8 to 4096");
+                }
+                let light = cli::renders::Lighting::parse(&light)?;
+                let camera = cli::renders::parse_pair(&camera).map_err(|e| anyhow::anyhow!("--camera: {e}"))?;
+                let m = std::sync::Arc::new(
+                    material::read(&dir).map_err(|e| anyhow::anyhow!("reading {}: {e}", dir.display()))?,
+                );
+                let scene = cli::renders::scene(camera, light, px);
+                tokio::task::block_in_place(|| cli::renders::render_to_file(m, &model, &scene, &out))?;
+                println!("{}", out.display());
                 Ok(())
             }
             Cmd::Inspect { dir, json } => {
