@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # The whole test suite, from a fresh clone: system packages, the workspace's
-# tests, the firmware protocol's no_std build, and the V4L2 tier in a VM.
+# tests (end-to-end runs of the binaries included), the firmware protocol's
+# no_std build, and the daemon's systemd unit.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
@@ -8,3 +9,14 @@ export CARGO_TERM_COLOR=never
 # Proves firmware-protocol is no_std and allocation-free (see PROTOCOL.md).
 cargo build --quiet --manifest-path firmware-protocol/nostd-check/Cargo.toml
 cargo test --workspace --no-fail-fast
+# The shipped systemd unit, checked against the freshly built daemon.
+cargo build --quiet --bin refl
+if command -v systemd-analyze >/dev/null 2>&1; then
+  unit_dir="$(mktemp -d)"
+  sed "s#^ExecStart=.*#ExecStart=$PWD/target/debug/refl daemon#" udev/reflectometer.service >"$unit_dir/reflectometer.service"
+  systemd-analyze verify "$unit_dir/reflectometer.service"
+  rm -rf "$unit_dir"
+  echo "test: udev/reflectometer.service verified" >&2
+else
+  echo "test: systemd-analyze is not installed here; the unit file was not verified" >&2
+fi

@@ -4,6 +4,7 @@
 
 pub mod calib;
 pub mod capture;
+pub mod daemon;
 pub mod eval;
 pub mod fitjob;
 pub mod inspect;

@@ -4,7 +4,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::Parser;
-use cli::capture::{self, CaptureRequest, Interrupted};
+use cli::capture::{self, CaptureRequest};
 use cli::presets::Overrides;
 use cli::progress::Reporter;
 use cli::rigfile::RigFile;
@@ -69,6 +69,9 @@ struct Args {
     /// List the simulated rig's built-in samples and exit.
     #[arg(long)]
     list_samples: bool,
+    /// Run in this process even when a capture daemon (`refl daemon`) is running.
+    #[arg(long)]
+    no_daemon: bool,
     /// Stop after this many shots, keeping everything (for demonstrations of --resume).
     #[arg(long, hide = true)]
     stop_after: Option<u64>,
@@ -105,7 +108,7 @@ fn main() -> ExitCode {
             }
             let c = capture::calibrate_sim(&rf, &g, &store, &mut rep, which == "white").await?;
             rep.emit(cli::progress::Event::Done { summary: serde_json::json!({ "calibration": c.id }) });
-            return anyhow::Ok(());
+            return anyhow::Ok(0);
         }
         let req = CaptureRequest {
             sample: args.sample.clone(),
@@ -127,6 +130,12 @@ fn main() -> ExitCode {
             no_fit: args.no_fit,
             stop_after: args.stop_after,
         };
+        if !args.no_daemon {
+            if let Some((socket, stream)) = cli::daemon::connect().await {
+                rep.stage("capture", format!("handing the job to the daemon on {}", socket.display()));
+                return cli::daemon::capture_via(&socket, stream, req, &mut rep).await;
+            }
+        }
         let (_tx, rx) = tokio::sync::watch::channel(false);
         let summary = capture::run(req, &mut rep, rx).await?;
         if !args.json {
@@ -135,18 +144,12 @@ fn main() -> ExitCode {
                 eprintln!("material: {}", m.display());
             }
         }
-        Ok(())
+        Ok(0)
     });
     match result {
-        Ok(()) => ExitCode::SUCCESS,
+        Ok(code) => ExitCode::from(code as u8),
         Err(e) => {
-            let code = if e.downcast_ref::<Interrupted>().is_some() {
-                cli::exit::INTERRUPTED
-            } else if e.downcast_ref::<cli::Usage>().is_some() {
-                cli::exit::USAGE
-            } else {
-                cli::exit::FAILED
-            };
+            let code = cli::daemon::exit_code(&e);
             rep.emit(cli::progress::Event::Error { message: format!("{e:#}") });
             ExitCode::from(code as u8)
         }

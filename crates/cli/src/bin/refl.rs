@@ -69,6 +69,22 @@ enum Cmd {
         #[arg(long)]
         json: bool,
     },
+    /// The headless capture service for a rig PC: accepts capture jobs on a
+    /// Unix socket (owner and group only), runs one at a time, streams
+    /// progress; systemd Type=notify with watchdog. `capture` uses it when
+    /// it runs. With --status or --cancel, asks a running daemon instead.
+    Daemon {
+        /// Socket path (default: $REFLECTOMETER_SOCKET, systemd's
+        /// $RUNTIME_DIRECTORY/daemon.sock, or the user's runtime directory).
+        #[arg(long)]
+        socket: Option<std::path::PathBuf>,
+        /// Print what the running daemon is doing.
+        #[arg(long, conflicts_with = "cancel")]
+        status: bool,
+        /// Stop the running daemon's capture (LEDs off, frames kept).
+        #[arg(long)]
+        cancel: bool,
+    },
     /// Start the emulated rig microcontroller on a pseudo-terminal and print its device path.
     SimMcu {
         /// Faults to inject (see `capture --help`).
@@ -140,6 +156,28 @@ fn main() -> ExitCode {
                     cli::inspect::print(&i);
                 }
                 Ok(())
+            }
+            Cmd::Daemon { socket, status, cancel } => {
+                if status || cancel {
+                    let socket = match socket {
+                        Some(s) => s,
+                        None => cli::daemon::connect().await.map(|(p, _)| p).ok_or_else(|| {
+                            anyhow::anyhow!(
+                                "no daemon is running (tried {})",
+                                cli::daemon::client_sockets()
+                                    .iter()
+                                    .map(|p| p.display().to_string())
+                                    .collect::<Vec<_>>()
+                                    .join(", ")
+                            )
+                        })?,
+                    };
+                    let req = if cancel { cli::daemon::Request::Cancel } else { cli::daemon::Request::Status };
+                    println!("{}", cli::daemon::ask(&socket, &req).await?);
+                    return Ok(());
+                }
+                let socket = socket.unwrap_or_else(cli::daemon::default_socket);
+                cli::daemon::serve(&socket).await
             }
             Cmd::SimMcu { faults, link, time_scale } => {
                 let spec = sim::FaultSpec::parse(&faults).map_err(|e| anyhow::anyhow!("--faults: {e}"))?;

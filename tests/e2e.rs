@@ -141,13 +141,7 @@ fn sigint_stops_the_capture_and_keeps_what_was_taken() {
         .stdout(Stdio::null())
         .stderr(Stdio::piped());
     let mut child = c.spawn().unwrap();
-    let manifest = lab.path("sig/manifest.jsonl");
-    let t = Instant::now();
-    while std::fs::metadata(&manifest).map(|m| m.len()).unwrap_or(0) < 2000 {
-        assert!(t.elapsed() < Duration::from_secs(120), "no frames arrived");
-        assert!(child.try_wait().unwrap().is_none(), "capture ended before the signal");
-        std::thread::sleep(Duration::from_millis(20));
-    }
+    wait_for_bytes(&mut child, &lab.path("sig/manifest.jsonl"), 2000);
     // SAFETY: plain kill(2) on our own child's pid.
     unsafe { libc::kill(child.id() as i32, libc::SIGINT) };
     let o = child.wait_with_output().unwrap();
@@ -202,4 +196,135 @@ fn bad_input_is_refused_clearly_and_nothing_is_lost() {
     assert!(stderr(&o).contains("not a capture directory"), "{}", stderr(&o));
     let o = lab.refl(&["render", s(&lab.path("nothing")), "-o", s(&lab.path("r.png"))]);
     assert!(!o.status.success());
+}
+
+/// Wait until `path` holds at least `bytes` bytes while `child` runs.
+fn wait_for_bytes(child: &mut std::process::Child, path: &Path, bytes: u64) {
+    let t = Instant::now();
+    while std::fs::metadata(path).map(|m| m.len()).unwrap_or(0) < bytes {
+        assert!(t.elapsed() < Duration::from_secs(120), "{} did not grow", path.display());
+        assert!(child.try_wait().unwrap().is_none(), "the process ended early");
+        std::thread::sleep(Duration::from_millis(10));
+    }
+}
+
+#[test]
+fn kill_9_mid_capture_resumes_without_loss_to_the_same_material() {
+    let lab = Lab::new();
+    assert_ok(&lab.capture("satin", "clean", &[]), "clean capture");
+    let mut c = lab.cmd(CAPTURE);
+    c.args(["--sample", "satin", "--quality", "fast", "--steps", "12", "--grid", "12", "--camera-px", "64"])
+        .arg("--out")
+        .arg(lab.path("killed"))
+        .stdout(Stdio::null())
+        .stderr(Stdio::null());
+    let mut child = c.spawn().unwrap();
+    wait_for_bytes(&mut child, &lab.path("killed/manifest.jsonl"), 6000);
+    child.kill().unwrap();
+    child.wait().unwrap();
+    assert!(!lab.path("killed/material").exists(), "killed before the fit");
+    let o = lab.cmd(CAPTURE).arg("--resume").arg(lab.path("killed")).output().unwrap();
+    assert_ok(&o, "resume after kill -9");
+    // Every shot exactly once in the manifest.
+    let manifest = std::fs::read_to_string(lab.path("killed/manifest.jsonl")).unwrap();
+    let mut frames: Vec<String> =
+        manifest.lines().map(|l| serde_json::from_str::<serde_json::Value>(l).unwrap()["frame"].to_string()).collect();
+    let n = frames.len();
+    frames.sort();
+    frames.dedup();
+    assert_eq!(frames.len(), n, "a frame is stored twice");
+    same_files(&lab.path("clean/material"), &lab.path("killed/material"), MATERIAL_FILES);
+}
+
+#[test]
+fn the_daemon_runs_one_capture_at_a_time_and_capture_uses_it() {
+    use std::os::unix::fs::PermissionsExt;
+    let lab = Lab::new();
+    let socket = lab.path("daemon.sock");
+    let mut daemon = lab
+        .cmd(REFL)
+        .arg("daemon")
+        .env("REFLECTOMETER_SOCKET", &socket)
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let t = Instant::now();
+    while !socket.exists() {
+        assert!(t.elapsed() < Duration::from_secs(30), "the daemon did not start");
+        assert!(daemon.try_wait().unwrap().is_none(), "the daemon exited");
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let mode = std::fs::metadata(&socket).unwrap().permissions().mode() & 0o777;
+    assert_eq!(mode, 0o660, "socket mode {mode:o}");
+
+    let mut first = lab.cmd(CAPTURE);
+    first
+        .args(["--sample", "satin", "--quality", "fast", "--steps", "48", "--grid", "12", "--camera-px", "64"])
+        .arg("--out")
+        .arg(lab.path("one"))
+        .arg("--json")
+        .env("REFLECTOMETER_SOCKET", &socket)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped());
+    let mut first = first.spawn().unwrap();
+    wait_for_bytes(&mut first, &lab.path("one/manifest.jsonl"), 2000);
+
+    // A second capture while the first runs is refused at once, touching nothing.
+    let o = lab
+        .cmd(CAPTURE)
+        .env("REFLECTOMETER_SOCKET", &socket)
+        .args(["--sample", "velvet", "--out"])
+        .arg(lab.path("two"))
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(75), "{}", stderr(&o));
+    assert!(stderr(&o).contains("busy"), "{}", stderr(&o));
+    assert!(!lab.path("two").exists());
+    let o = lab.cmd(REFL).args(["daemon", "--status", "--socket", s(&socket)]).output().unwrap();
+    assert_ok(&o, "daemon --status");
+    assert!(String::from_utf8_lossy(&o.stdout).contains("one"), "{}", String::from_utf8_lossy(&o.stdout));
+
+    let o = first.wait_with_output().unwrap();
+    assert_ok(&o, "capture through the daemon");
+    // Its progress came back as events: the hand-over, frames, and the end.
+    let events: Vec<serde_json::Value> =
+        String::from_utf8_lossy(&o.stdout).lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    assert!(events.iter().any(|e| e["detail"].as_str().is_some_and(|d| d.contains("daemon"))), "no hand-over");
+    assert!(events.iter().any(|e| e["event"] == "frames"), "no frame progress");
+    assert_eq!(events.last().unwrap()["event"], "done");
+    assert!(lab.path("one/material/maps.exr").is_file());
+    assert!(lab.path("one/renders/sky.png").is_file());
+
+    // Relative paths are resolved against the client's directory.
+    let o = lab
+        .cmd(CAPTURE)
+        .current_dir(lab.dir.path())
+        .env("REFLECTOMETER_SOCKET", &socket)
+        .args([
+            "--sample",
+            "satin",
+            "--quality",
+            "fast",
+            "--steps",
+            "8",
+            "--grid",
+            "8",
+            "--camera-px",
+            "48",
+            "--no-fit",
+            "--out",
+            "rel",
+        ])
+        .output()
+        .unwrap();
+    assert_ok(&o, "relative --out through the daemon");
+    assert!(lab.path("rel/manifest.jsonl").is_file());
+
+    // SIGTERM: the daemon exits cleanly and removes its socket.
+    // SAFETY: plain kill(2) on our own child's pid.
+    unsafe { libc::kill(daemon.id() as i32, libc::SIGTERM) };
+    let status = daemon.wait().unwrap();
+    assert!(status.success(), "daemon exit {status:?}");
+    assert!(!socket.exists());
 }

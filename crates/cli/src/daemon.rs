@@ -1,0 +1,334 @@
+//! `refl daemon`: the headless service that owns a rig PC's devices, and
+//! the client `capture` uses to reach it.
+//!
+//! The daemon listens on a Unix socket (mode 0660: its owner and group
+//! only) and runs capture jobs one at a time through the same
+//! [`capture::run`] the in-process path uses. A second capture while one
+//! runs is answered "busy" at once. Under systemd (`Type=notify`) it
+//! reports readiness and pings the watchdog from the async runtime, so a
+//! wedged runtime gets the service restarted.
+//!
+//! Wire format: one JSON object per line. The client sends one request:
+//!
+//! ```text
+//! {"op":"capture","request":{...CaptureRequest...}}
+//! {"op":"status"}
+//! {"op":"cancel"}
+//! ```
+//!
+//! A capture is answered with progress [`Event`] lines and a last line
+//! `{"exit":CODE}` (the exit code the in-process `capture` would have
+//! given: 0, 1, 2, 130, or 75 for busy). `status` answers
+//! `{"busy":null}` or `{"busy":{"sample":..,"out":..}}`; `cancel`
+//! interrupts the running job (as Ctrl-C would) and answers
+//! `{"cancelled":true|false}`. A client that goes away does not stop its
+//! job: a capture on a rig PC outlives a dropped SSH session; `cancel`
+//! stops it.
+
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use anyhow::{Context, Result, anyhow, bail};
+use serde::{Deserialize, Serialize};
+use tokio::io::{AsyncBufReadExt, AsyncReadExt, AsyncWriteExt, BufReader};
+use tokio::net::{UnixListener, UnixStream};
+use tokio::sync::{mpsc, watch};
+
+use crate::capture::{self, CaptureRequest, Interrupted};
+use crate::progress::{Event, Mode, Reporter};
+
+/// Exit code of a capture refused because another is running.
+pub const BUSY: i32 = 75;
+
+/// A request to the daemon.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "op", rename_all = "snake_case")]
+pub enum Request {
+    Capture { request: CaptureRequest },
+    Status,
+    Cancel,
+}
+
+/// The job the daemon is running.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct JobInfo {
+    pub sample: Option<String>,
+    pub out: Option<PathBuf>,
+}
+
+struct Running {
+    info: JobInfo,
+    cancel: watch::Sender<bool>,
+}
+
+/// Where a daemon listens: `$REFLECTOMETER_SOCKET`, else systemd's
+/// `$RUNTIME_DIRECTORY/daemon.sock`, else `runtime_dir()/daemon.sock`.
+pub fn default_socket() -> PathBuf {
+    if let Some(p) = std::env::var_os("REFLECTOMETER_SOCKET") {
+        return PathBuf::from(p);
+    }
+    if let Some(d) = std::env::var_os("RUNTIME_DIRECTORY") {
+        return PathBuf::from(d).join("daemon.sock");
+    }
+    crate::paths::runtime_dir().join("daemon.sock")
+}
+
+/// Sockets a client tries, in order: `$REFLECTOMETER_SOCKET` alone when
+/// set; otherwise the system service's and then the user's.
+pub fn client_sockets() -> Vec<PathBuf> {
+    if let Some(p) = std::env::var_os("REFLECTOMETER_SOCKET") {
+        return vec![PathBuf::from(p)];
+    }
+    vec![PathBuf::from("/run/reflectometer/daemon.sock"), crate::paths::runtime_dir().join("daemon.sock")]
+}
+
+/// Send `state` to systemd's notification socket, if there is one.
+pub fn sd_notify(state: &str) {
+    use std::os::linux::net::SocketAddrExt;
+    use std::os::unix::net::{SocketAddr, UnixDatagram};
+    let Some(path) = std::env::var_os("NOTIFY_SOCKET") else { return };
+    let path = path.to_string_lossy().into_owned();
+    let addr = match path.strip_prefix('@') {
+        Some(name) => SocketAddr::from_abstract_name(name.as_bytes()),
+        None => SocketAddr::from_pathname(&path),
+    };
+    let sent = addr.and_then(|a| UnixDatagram::unbound().and_then(|s| s.send_to_addr(state.as_bytes(), &a)));
+    if let Err(e) = sent {
+        tracing::warn!(error = %e, "cannot notify systemd");
+    }
+}
+
+/// Bind the socket: refuse if a daemon already answers there, replace a
+/// stale one, and restrict it to owner and group.
+fn bind(path: &Path) -> Result<UnixListener> {
+    use std::os::unix::fs::PermissionsExt;
+    if let Some(dir) = path.parent() {
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    }
+    if path.exists() {
+        if std::os::unix::net::UnixStream::connect(path).is_ok() {
+            bail!("a daemon is already listening on {}", path.display());
+        }
+        std::fs::remove_file(path).with_context(|| format!("cannot remove the stale socket {}", path.display()))?;
+    }
+    let l = UnixListener::bind(path).with_context(|| format!("cannot listen on {}", path.display()))?;
+    std::fs::set_permissions(path, std::fs::Permissions::from_mode(0o660))
+        .with_context(|| format!("cannot restrict {}", path.display()))?;
+    Ok(l)
+}
+
+/// Run the daemon until SIGTERM or Ctrl-C (a running job is interrupted
+/// first: LEDs off, gantry stopped, frames kept).
+pub async fn serve(socket: &Path) -> Result<()> {
+    let listener = bind(socket)?;
+    let job: Arc<Mutex<Option<Running>>> = Arc::new(Mutex::new(None));
+    tracing::info!("daemon listening on {}", socket.display());
+    sd_notify("READY=1\nSTATUS=idle");
+    let watchdog = std::env::var("WATCHDOG_USEC").ok().and_then(|v| v.parse::<u64>().ok());
+    let mut ping = tokio::time::interval(Duration::from_micros(watchdog.unwrap_or(10_000_000) / 2));
+    let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())
+        .context("cannot watch for SIGTERM")?;
+    let result = loop {
+        tokio::select! {
+            a = listener.accept() => match a {
+                Ok((stream, _)) => {
+                    let job = job.clone();
+                    tokio::spawn(async move {
+                        if let Err(e) = handle(stream, job).await {
+                            tracing::warn!(error = %e, "client connection failed");
+                        }
+                    });
+                }
+                Err(e) => break Err(anyhow!("accept on {}: {e}", socket.display())),
+            },
+            _ = ping.tick() => if watchdog.is_some() { sd_notify("WATCHDOG=1") },
+            _ = term.recv() => break Ok(()),
+            _ = tokio::signal::ctrl_c() => break Ok(()),
+        }
+    };
+    sd_notify("STOPPING=1");
+    // Stop a running job and give it time to switch the rig off.
+    let cancel = job.lock().unwrap_or_else(|p| p.into_inner()).as_ref().map(|r| r.cancel.clone());
+    if let Some(c) = cancel {
+        tracing::info!("stopping the running capture");
+        let _ = c.send(true);
+        for _ in 0..100 {
+            if job.lock().unwrap_or_else(|p| p.into_inner()).is_none() {
+                break;
+            }
+            tokio::time::sleep(Duration::from_millis(100)).await;
+        }
+    }
+    let _ = std::fs::remove_file(socket);
+    result
+}
+
+async fn send_line(w: &mut (impl AsyncWriteExt + Unpin), v: &impl Serialize) -> std::io::Result<()> {
+    let mut b = serde_json::to_vec(v).map_err(std::io::Error::other)?;
+    b.push(b'\n');
+    w.write_all(&b).await?;
+    w.flush().await
+}
+
+async fn handle(stream: UnixStream, job: Arc<Mutex<Option<Running>>>) -> Result<()> {
+    let (r, mut w) = stream.into_split();
+    let mut line = String::new();
+    if BufReader::new(r).take(1 << 20).read_line(&mut line).await? == 0 {
+        // Connected and went away (a client probing for the daemon).
+        return Ok(());
+    }
+    let req: Request = match serde_json::from_str(&line) {
+        Ok(r) => r,
+        Err(e) => {
+            send_line(&mut w, &Event::Error { message: format!("bad request: {e}") }).await?;
+            send_line(&mut w, &serde_json::json!({ "exit": crate::exit::USAGE })).await?;
+            return Ok(());
+        }
+    };
+    match req {
+        Request::Status => {
+            let busy = job.lock().unwrap_or_else(|p| p.into_inner()).as_ref().map(|r| r.info.clone());
+            send_line(&mut w, &serde_json::json!({ "busy": busy })).await?;
+        }
+        Request::Cancel => {
+            let c = job.lock().unwrap_or_else(|p| p.into_inner()).as_ref().map(|r| r.cancel.clone());
+            let cancelled = c.is_some_and(|c| c.send(true).is_ok());
+            send_line(&mut w, &serde_json::json!({ "cancelled": cancelled })).await?;
+        }
+        Request::Capture { request } => {
+            let (cancel_tx, cancel_rx) = watch::channel(false);
+            let info = JobInfo { sample: request.sample.clone(), out: request.out.clone().or(request.resume.clone()) };
+            let busy = {
+                let mut g = job.lock().unwrap_or_else(|p| p.into_inner());
+                match g.as_ref() {
+                    Some(r) => Some(format!(
+                        "busy: the rig is capturing '{}' into {}; wait for it, or stop it with `refl daemon --cancel`",
+                        r.info.sample.as_deref().unwrap_or("?"),
+                        r.info.out.as_ref().map_or("?".into(), |p| p.display().to_string())
+                    )),
+                    None => {
+                        *g = Some(Running { info: info.clone(), cancel: cancel_tx });
+                        None
+                    }
+                }
+            };
+            if let Some(msg) = busy {
+                send_line(&mut w, &Event::Error { message: msg }).await?;
+                send_line(&mut w, &serde_json::json!({ "exit": BUSY })).await?;
+                return Ok(());
+            }
+            sd_notify(&format!("STATUS=capturing {}", info.sample.as_deref().unwrap_or("?")));
+            let (tx, mut rx) = mpsc::unbounded_channel::<Event>();
+            let job2 = job.clone();
+            let worker = tokio::spawn(async move {
+                let mut rep = Reporter::new(Mode::Plain).forward_to(move |e| {
+                    let _ = tx.send(e.clone());
+                });
+                let r = capture::run(request, &mut rep, cancel_rx).await;
+                let code = match &r {
+                    Ok(_) => 0,
+                    Err(e) => {
+                        rep.emit(Event::Error { message: format!("{e:#}") });
+                        exit_code(e)
+                    }
+                };
+                *job2.lock().unwrap_or_else(|p| p.into_inner()) = None;
+                sd_notify("STATUS=idle");
+                code
+            });
+            // Relay events while the client listens; the job goes on without it.
+            let mut client = Some(w);
+            while let Some(e) = rx.recv().await {
+                if let Some(c) = client.as_mut() {
+                    if send_line(c, &e).await.is_err() {
+                        tracing::warn!("the client went away; the capture goes on");
+                        client = None;
+                    }
+                }
+            }
+            let code = worker.await.unwrap_or(crate::exit::FAILED);
+            if let Some(mut c) = client {
+                send_line(&mut c, &serde_json::json!({ "exit": code })).await?;
+            }
+        }
+    }
+    Ok(())
+}
+
+/// The exit code an error means.
+pub fn exit_code(e: &anyhow::Error) -> i32 {
+    if e.downcast_ref::<Interrupted>().is_some() {
+        crate::exit::INTERRUPTED
+    } else if e.downcast_ref::<crate::Usage>().is_some() {
+        crate::exit::USAGE
+    } else {
+        crate::exit::FAILED
+    }
+}
+
+/// A connection to a running daemon, if one answers.
+pub async fn connect() -> Option<(PathBuf, UnixStream)> {
+    for p in client_sockets() {
+        if let Ok(s) = UnixStream::connect(&p).await {
+            return Some((p, s));
+        }
+    }
+    None
+}
+
+/// Make the request's paths absolute (the daemon has another working
+/// directory).
+fn absolute(mut req: CaptureRequest) -> Result<CaptureRequest> {
+    let cwd = std::env::current_dir().context("cannot read the working directory")?;
+    for p in [&mut req.out, &mut req.resume, &mut req.rig_file, &mut req.sim_material, &mut req.calib_dir]
+        .into_iter()
+        .flatten()
+    {
+        if p.is_relative() {
+            *p = cwd.join(&*p);
+        }
+    }
+    Ok(req)
+}
+
+/// Run a capture through the daemon on `stream`, relaying its progress to
+/// `rep`; Ctrl-C asks the daemon to cancel. Returns the exit code.
+pub async fn capture_via(socket: &Path, stream: UnixStream, req: CaptureRequest, rep: &mut Reporter) -> Result<i32> {
+    let req = absolute(req)?;
+    let (r, mut w) = stream.into_split();
+    send_line(&mut w, &Request::Capture { request: req }).await?;
+    let mut lines = BufReader::new(r).lines();
+    let mut cancelled = false;
+    loop {
+        tokio::select! {
+            l = lines.next_line() => {
+                let Some(l) = l? else { bail!("the daemon on {} closed the connection", socket.display()) };
+                let v: serde_json::Value = serde_json::from_str(&l).context("bad line from the daemon")?;
+                if let Some(code) = v.get("exit").and_then(|c| c.as_i64()) {
+                    return Ok(code as i32);
+                }
+                match serde_json::from_value::<Event>(v) {
+                    Ok(e) => rep.emit(e),
+                    Err(e) => tracing::warn!(error = %e, "unknown event from the daemon"),
+                }
+            }
+            _ = tokio::signal::ctrl_c(), if !cancelled => {
+                cancelled = true;
+                rep.warn("asking the daemon to stop the capture");
+                let mut s = UnixStream::connect(socket).await?;
+                send_line(&mut s, &Request::Cancel).await?;
+            }
+        }
+    }
+}
+
+/// Send `status` or `cancel` and return the daemon's answer.
+pub async fn ask(socket: &Path, req: &Request) -> Result<serde_json::Value> {
+    let s = UnixStream::connect(socket).await.with_context(|| format!("no daemon answers on {}", socket.display()))?;
+    let (r, mut w) = s.into_split();
+    send_line(&mut w, req).await?;
+    let mut lines = BufReader::new(r).lines();
+    let l = lines.next_line().await?.ok_or_else(|| anyhow!("the daemon closed the connection"))?;
+    Ok(serde_json::from_str(&l)?)
+}
