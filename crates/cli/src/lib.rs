@@ -2,6 +2,7 @@
 //! `refl` binaries and the daemon: rig files, quality presets, calibration,
 //! the capture job (devices, store, streaming fit) and its outputs.
 
+pub mod bench;
 pub mod calib;
 pub mod capture;
 pub mod daemon;

@@ -85,6 +85,11 @@ enum Cmd {
         #[arg(long)]
         cancel: bool,
     },
+    /// Print performance figures (see each benchmark's --help).
+    Bench {
+        #[command(subcommand)]
+        which: BenchCmd,
+    },
     /// Start the emulated rig microcontroller on a pseudo-terminal and print its device path.
     SimMcu {
         /// Faults to inject (see `capture --help`).
@@ -96,6 +101,60 @@ enum Cmd {
         /// Mechanical time scale (1 = real time).
         #[arg(long, default_value_t = 1.0)]
         time_scale: f64,
+    },
+}
+
+#[derive(Debug, Subcommand)]
+enum BenchCmd {
+    /// The fitter's stages (points/s) and peak memory on a synthetic
+    /// capture. Default: the balanced preset's size (96 x 96 points, 64
+    /// steps x 40 LEDs). The talk's scale: --points 800 (2,560 lights).
+    Fit {
+        #[arg(long, default_value = "satin")]
+        sample: String,
+        /// Points per side.
+        #[arg(long, default_value_t = 96)]
+        points: u32,
+        /// Gantry steps (times 40 LEDs / --led-stride lights).
+        #[arg(long, default_value_t = 64)]
+        steps: u32,
+        #[arg(long, default_value_t = 1)]
+        led_stride: u32,
+        /// NDF table rings (cells: rings x 3 rings).
+        #[arg(long, default_value_t = 16)]
+        ndf_theta: u32,
+        /// Stop after the per-point fit (no synthesis, no refit).
+        #[arg(long)]
+        no_synthesis: bool,
+    },
+    /// A capture on the simulated rig in real time: wall time against the
+    /// physical limit (frames x frame period + gantry moves and settling).
+    Realtime {
+        #[arg(long, default_value = "satin")]
+        sample: String,
+        #[arg(long, default_value_t = 8)]
+        steps: u32,
+        #[arg(long, default_value_t = 1)]
+        led_stride: u8,
+        #[arg(long, default_value_t = 30.0)]
+        fps: f32,
+    },
+    /// Microfacet synthesis: brute force, clustered and accelerated search
+    /// on the same partial tables (time and NDF error against ground truth).
+    Synthesis {
+        #[arg(long, default_value = "satin")]
+        sample: String,
+        /// Points per side (N = points^2).
+        #[arg(long, default_value_t = 64)]
+        points: u32,
+        #[arg(long, default_value_t = 48)]
+        steps: u32,
+        /// Comma-separated: brute, clustered, accelerated.
+        #[arg(long, default_value = "brute,clustered,accelerated")]
+        modes: String,
+        /// k-means clusters (default N / 100, 8 to 1000).
+        #[arg(long)]
+        clusters: Option<u32>,
     },
 }
 
@@ -179,6 +238,20 @@ fn main() -> ExitCode {
                 let socket = socket.unwrap_or_else(cli::daemon::default_socket);
                 cli::daemon::serve(&socket).await
             }
+            Cmd::Bench { which } => match which {
+                BenchCmd::Realtime { sample, steps, led_stride, fps } => {
+                    cli::bench::realtime(&sample, steps, led_stride, fps).await
+                }
+                BenchCmd::Fit { sample, points, steps, led_stride, ndf_theta, no_synthesis } => {
+                    tokio::task::block_in_place(|| {
+                        cli::bench::fit(&sample, points, steps, led_stride, ndf_theta, !no_synthesis)
+                    })
+                }
+                BenchCmd::Synthesis { sample, points, steps, modes, clusters } => {
+                    let modes = cli::bench::parse_modes(&modes)?;
+                    tokio::task::block_in_place(|| cli::bench::synthesis(&sample, points, steps, &modes, clusters))
+                }
+            },
             Cmd::SimMcu { faults, link, time_scale } => {
                 let spec = sim::FaultSpec::parse(&faults).map_err(|e| anyhow::anyhow!("--faults: {e}"))?;
                 let cfg = cli::session::mcu_config(&setup::RigGeometry::default(), time_scale);

@@ -1,0 +1,338 @@
+//! `refl bench`: the figures the issues ask for, printed by commands anyone
+//! can run on inputs the repository makes.
+//!
+//! - `fit`: the fitter's stages in points per second and the process's
+//!   peak memory, on a synthetic capture written straight into the sample
+//!   store (a simulated material evaluated at every (light, point) pair
+//!   with 1% noise): the default preset's size, or the talk's 800 x 800
+//!   points x 2,560 lights with `--points 800 --steps 64`.
+//! - `synthesis`: the three search modes on the same partial tables
+//!   (time, points per second, NDF error against ground truth).
+//! - `realtime`: a capture on the simulated rig in real time (camera at its
+//!   frame rate, gantry at its speed), wall time against the physical
+//!   limit.
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use anyhow::{Result, anyhow};
+use brdf::Brdf;
+use brdf::ndf::{MaskingOperator, NdfTable, TableSet};
+use fit::samples::{SampleStore, flag};
+use fit::synth::{SearchMode, SynthSettings, synthesize};
+use fit::{FitContext, FitInputs, FitSettings};
+use glam::Vec2;
+use half::f16;
+use material::SvBrdf;
+use rayon::prelude::*;
+use setup::{Calibration, CapturePlan, PointGrid, RigGeometry};
+
+use crate::report::peak_memory_mb;
+
+/// A synthetic capture in memory: its context and filled sample store.
+pub struct Synthetic {
+    pub ctx: FitContext,
+    pub store: SampleStore,
+    pub material: Arc<dyn SvBrdf>,
+}
+
+impl std::fmt::Debug for Synthetic {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Synthetic").field("points", &self.ctx.n_points()).field("lights", &self.ctx.n_lights()).finish()
+    }
+}
+
+/// The synthetic rig's radiometry: LED intensity (so that a white point
+/// 4 cm under an LED reads about 2,000 DN in 20 ms), read noise and
+/// electrons per DN of a typical 12-bit machine-vision sensor.
+const LED_SCALE: f32 = 5e8;
+const READ_NOISE_DN: f32 = 2.0;
+const E_PER_DN: f32 = 4.0;
+const EXPOSURE_S: f32 = 0.02;
+
+/// Cheap deterministic noise in [-1, 1] (a hash of the sample index).
+fn noise(k: u64) -> f32 {
+    let mut x = k.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ 0xD1B5_4A32_D192_ED03;
+    x ^= x >> 31;
+    x = x.wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    x ^= x >> 29;
+    (x >> 40) as f32 / (1u64 << 23) as f32 - 1.0
+}
+
+/// The sample store of `material` on a `side` x `side` grid lit from
+/// `steps` gantry positions x every `led_stride`-th LED of the default rig.
+pub fn synthetic(material: Arc<dyn SvBrdf>, side: u32, steps: u32, led_stride: u32) -> Result<Synthetic> {
+    let mut g = RigGeometry::default();
+    // A camera fine enough that every point has its own pixel.
+    g.camera.width = (side * 5 / 4).max(64);
+    g.camera.height = g.camera.width;
+    let plan = CapturePlan {
+        steps,
+        first_mm: g.gantry.travel_min_mm,
+        last_mm: g.gantry.travel_max_mm,
+        leds: (0..g.bar.n_leds).step_by(led_stride.max(1) as usize).collect(),
+        exposures_us: vec![(EXPOSURE_S * 1e6) as u32],
+        gain: 1.0,
+        dark_frames: 0,
+    };
+    plan.validate(&g)?;
+    let inputs = FitInputs {
+        geometry: g.clone(),
+        plan,
+        calibration: Calibration {
+            led_scale: vec![LED_SCALE; g.bar.n_leds as usize],
+            read_noise_dn: [READ_NOISE_DN; 3],
+            ..Calibration::nominal(g.bar.n_leds, 1.0, 0.0)
+        },
+        grid: PointGrid { cols: side, rows: side },
+        e_per_dn: E_PER_DN,
+        bit_depth: 12,
+    };
+    let ctx = FitContext::new(inputs);
+    let (n, nl) = (ctx.n_points(), ctx.n_lights());
+    let mut store = SampleStore::new(n, nl);
+    let points: Vec<_> = ctx.positions.iter().map(|x| material.at(Vec2::new(x.x, x.y))).collect();
+    for q in 0..nl {
+        let (rho, fl) = store.row_mut(q);
+        rho.par_iter_mut().zip(fl.par_iter_mut()).enumerate().for_each(|(p, (r, f))| {
+            if ctx.pixels[p].is_none() {
+                *f = flag::OUT_OF_VIEW;
+                return;
+            }
+            let Some(s) = ctx.sample(p, q) else {
+                *f = flag::DIM;
+                return;
+            };
+            if s.occluded {
+                *f = flag::OCCLUDED;
+                return;
+            }
+            let v = points[p].eval(s.i, ctx.view[p]);
+            let out = [v.x, v.y, v.z];
+            // The fitter's noise model (`fit::points::gather`): rho = DN k.
+            let k = s.to_rho / (EXPOSURE_S * 1.0);
+            let h = (q * n + p) as u64 * 3;
+            *r = std::array::from_fn(|c| {
+                let sd = (k * k * READ_NOISE_DN * READ_NOISE_DN + k * out[c].max(0.0) / E_PER_DN).sqrt();
+                // Uniform on [-sqrt 3, sqrt 3]: unit variance.
+                f16::from_f32(out[c] + sd * 1.732 * noise(h + c as u64))
+            });
+            *f = 0;
+        });
+    }
+    Ok(Synthetic { ctx, store, material })
+}
+
+fn mem() -> String {
+    peak_memory_mb().map_or("?".into(), |m| format!("{:.0} MB", m))
+}
+
+/// `refl bench fit`.
+pub fn fit(sample: &str, side: u32, steps: u32, led_stride: u32, ndf_theta: u32, synthesis: bool) -> Result<()> {
+    let material = crate::capture::sim_material(sample, None)?;
+    println!(
+        "fit benchmark: '{sample}', {side} x {side} points, {steps} steps x every {led_stride} LED, NDF {ndf_theta} x {} cells, {} threads",
+        3 * ndf_theta,
+        rayon::current_num_threads()
+    );
+    let t = Instant::now();
+    let s = synthetic(material, side, steps, led_stride)?;
+    let n = s.ctx.n_points();
+    println!(
+        "  synthetic samples: {} lights x {n} points = {:.2} G samples, {:.2} GB store, {:.1} s (not a fitter stage); peak memory {}",
+        s.ctx.n_lights(),
+        (n * s.ctx.n_lights()) as f64 / 1e9,
+        s.store.bytes() as f64 / 1e9,
+        t.elapsed().as_secs_f64(),
+        mem()
+    );
+    let settings =
+        FitSettings { grid: brdf::ndf::NdfGrid { n_theta: ndf_theta, n_phi: 3 * ndf_theta }, ..FitSettings::default() };
+    let op = MaskingOperator::new(settings.grid);
+    let t = Instant::now();
+    let maps = fit::points::fit_points(&s.ctx, &s.store, &settings, &op);
+    let dt = t.elapsed().as_secs_f64();
+    let no_spec = maps.flags.iter().filter(|&&f| f & fit::point_flag::NO_SPECULAR != 0).count();
+    println!(
+        "  per-point fit (gather, diffuse, splat, push-pull, masking, Fresnel): {:.1} s, {:.0} points/s; {no_spec} without specular; peak memory {}",
+        dt,
+        n as f64 / dt,
+        mem()
+    );
+    if !synthesis {
+        return Ok(());
+    }
+    let eligible: Vec<bool> = maps.flags.iter().map(|f| f & fit::point_flag::NO_SPECULAR == 0).collect();
+    let t = Instant::now();
+    let out = synthesize(
+        &maps.tables,
+        &eligible,
+        &SynthSettings { clusters: (n as u32 / 100).clamp(8, 1000), ..SynthSettings::default() },
+    );
+    let dt = t.elapsed().as_secs_f64();
+    println!(
+        "  synthesis (accelerated, {} clusters): {:.1} s, {:.0} points/s; completed {} of {}; peak memory {}",
+        (n as u32 / 100).clamp(8, 1000),
+        dt,
+        n as f64 / dt,
+        out.stats.completed,
+        out.stats.points,
+        mem()
+    );
+    let added: Vec<bool> = out.mass_factor.iter().map(|&k| k != 1.0).collect();
+    let mut maps = maps;
+    let t = Instant::now();
+    let refit = fit::points::refit_completed(&s.ctx, &s.store, &mut maps, &out.tables, &added, &settings, &op);
+    let dt = t.elapsed().as_secs_f64();
+    println!(
+        "  refit with the completed NDF: {refit} points in {:.1} s, {:.0} points/s; peak memory {}",
+        dt,
+        refit as f64 / dt.max(1e-9),
+        mem()
+    );
+    Ok(())
+}
+
+/// Pooled relative L2 error of `tables` against the truth over the whole
+/// hemisphere, over points with specular.
+fn ndf_error(s: &Synthetic, flags: &[u32], tables: &TableSet) -> f64 {
+    let grid = tables.grid();
+    let (mut num, mut den) = (0.0f64, 0.0f64);
+    for p in 0..tables.len() {
+        if flags[p] & fit::point_flag::NO_SPECULAR != 0 {
+            continue;
+        }
+        let x = s.ctx.positions[p];
+        let Some(ndf) = s.material.at(Vec2::new(x.x, x.y)).ndf().cloned() else { continue };
+        let mut t = NdfTable::from_ndf(grid, &ndf);
+        if t.normalize() <= 0.0 {
+            continue;
+        }
+        let est = tables.get(p);
+        for c in 0..grid.len() {
+            let w = grid.cos_measure(c / grid.n_phi as usize) as f64;
+            let (a, b) = (est.values()[c] as f64, t.values()[c] as f64);
+            num += w * (a - b) * (a - b);
+            den += w * b * b;
+        }
+    }
+    (num / den.max(1e-30)).sqrt()
+}
+
+/// `refl bench synthesis`.
+pub fn synthesis(sample: &str, side: u32, steps: u32, modes: &[SearchMode], clusters: Option<u32>) -> Result<()> {
+    let material = crate::capture::sim_material(sample, None)?;
+    let s = synthetic(material, side, steps, 1)?;
+    let n = s.ctx.n_points();
+    let settings = FitSettings::default();
+    let op = MaskingOperator::new(settings.grid);
+    let maps = fit::points::fit_points(&s.ctx, &s.store, &settings, &op);
+    let eligible: Vec<bool> = maps.flags.iter().map(|f| f & fit::point_flag::NO_SPECULAR == 0).collect();
+    let clusters = clusters.unwrap_or((n as u32 / 100).clamp(8, 1000));
+    println!(
+        "synthesis benchmark: '{sample}', N = {n} points ({} with specular), {clusters} clusters, {} threads",
+        eligible.iter().filter(|&&e| e).count(),
+        rayon::current_num_threads()
+    );
+    println!("  partial tables: NDF error over the hemisphere {:.4}", ndf_error(&s, &maps.flags, &maps.tables));
+    for &mode in modes {
+        let t = Instant::now();
+        let out = synthesize(&maps.tables, &eligible, &SynthSettings { mode, clusters, ..SynthSettings::default() });
+        let dt = t.elapsed().as_secs_f64();
+        println!(
+            "  {mode:?}: {:.2} s ({:.0} points/s), {} candidates scored, {} pruned, NDF error {:.4}; peak memory {}",
+            dt,
+            n as f64 / dt,
+            out.stats.candidates_scored,
+            out.stats.pruned,
+            ndf_error(&s, &maps.flags, &out.tables),
+            mem()
+        );
+    }
+    Ok(())
+}
+
+/// Parse a comma-separated list of search modes.
+pub fn parse_modes(s: &str) -> Result<Vec<SearchMode>> {
+    s.split(',')
+        .map(|m| match m.trim() {
+            "brute" | "brute-force" => Ok(SearchMode::BruteForce),
+            "clustered" => Ok(SearchMode::Clustered),
+            "accelerated" => Ok(SearchMode::Accelerated),
+            o => Err(anyhow!("unknown search mode '{o}': brute, clustered, accelerated")),
+        })
+        .collect()
+}
+
+/// `refl bench realtime`: a capture of `sample` on the simulated rig in
+/// real time (the camera at `fps`, exposure and readout within the frame
+/// period; the gantry at the rig's speed, acceleration and settling), its
+/// wall time from the first shot to the last stored frame against the
+/// physical limit: frames x frame period + the gantry's moves and settling
+/// between steps. Homing is outside both. The streaming fit runs alongside,
+/// as in a real capture.
+pub async fn realtime(sample: &str, steps: u32, led_stride: u8, fps: f32) -> Result<()> {
+    use crate::progress::{Event, Mode, Reporter};
+    use crate::rigfile::RigFile;
+    let dir = std::env::temp_dir().join(format!("refl-bench-realtime-{}", std::process::id()));
+    std::fs::create_dir_all(&dir)?;
+    let (mut rf, _) = RigFile::load(None)?;
+    anyhow::ensure!(rf.kind == crate::rigfile::RigKind::Sim, "this benchmark runs the simulated rig");
+    let q = crate::presets::preset("fast").ok_or_else(|| anyhow!("no fast preset"))?;
+    let o = crate::presets::Overrides { steps: Some(steps), led_stride: Some(led_stride), ..Default::default() };
+    let q = q.apply(&o)?;
+    let g = crate::capture::geometry_for(&rf, &q);
+    // Calibrate at simulation speed first (a real-time one would take minutes).
+    let calib = dir.join("calibration");
+    let store = crate::calib::CalibrationStore::new(Some(&calib), &rf.name);
+    let mut quiet = Reporter::new(Mode::Silent);
+    crate::capture::calibrate_sim(&rf, &g, &store, &mut quiet, true).await?;
+    rf.sim.realtime = true;
+    rf.sim.fps = fps;
+    let rig_path = dir.join("rig.toml");
+    std::fs::write(&rig_path, toml::to_string(&rf)?)?;
+    let events: Arc<std::sync::Mutex<Vec<(Instant, Event)>>> = Arc::default();
+    let ev = events.clone();
+    let mut rep = Reporter::new(Mode::Silent).forward_to(move |e| {
+        ev.lock().unwrap_or_else(|p| p.into_inner()).push((Instant::now(), e.clone()));
+    });
+    let req = crate::capture::CaptureRequest {
+        sample: Some(sample.to_string()),
+        out: Some(dir.join("capture")),
+        quality: Some("fast".into()),
+        overrides: o,
+        rig_file: Some(rig_path),
+        calib_dir: Some(calib),
+        ..Default::default()
+    };
+    println!(
+        "real-time capture: '{sample}', {steps} steps x {} LEDs at {fps} frames/s (this takes about {:.0} s)",
+        g.bar.n_leds.div_ceil(led_stride.max(1)),
+        (steps * g.bar.n_leds.div_ceil(led_stride.max(1)) as u32) as f32 / fps
+    );
+    let (_tx, rx) = tokio::sync::watch::channel(false);
+    let summary = crate::capture::run(req, &mut rep, rx).await?;
+    let events = events.lock().unwrap_or_else(|p| p.into_inner()).clone();
+    let at = |pred: &dyn Fn(&Event) -> bool| events.iter().find(|(_, e)| pred(e)).map(|(t, _)| *t);
+    let start =
+        at(&|e| matches!(e, Event::Stage { stage, detail } if stage == "capture" && detail.contains("shots to take")));
+    let end =
+        at(&|e| matches!(e, Event::Stage { stage, detail } if stage == "capture" && detail.contains("frames stored")));
+    let (Some(start), Some(end)) = (start, end) else { anyhow::bail!("the capture did not report its stages") };
+    let info = store::CaptureDir::read_info(&summary.dir)?;
+    let plan = &info.plan;
+    let frames = plan.shots().len() + plan.dark_frames as usize * plan.exposures_us.len();
+    let cfg = crate::session::mcu_config(&info.geometry, 1.0);
+    let step_um = if plan.steps > 1 {
+        (plan.last_mm - plan.first_mm).abs() as f64 * 1000.0 / (plan.steps - 1) as f64
+    } else {
+        0.0
+    };
+    let moves_s = (plan.steps.saturating_sub(1)) as f64 * (cfg.profile.duration_s(step_um) + cfg.settle_ms / 1000.0);
+    let limit = frames as f64 / fps as f64 + moves_s;
+    let wall = (end - start).as_secs_f64();
+    println!("  frames: {frames} ({:.2} s at {fps}/s); moves and settling: {moves_s:.2} s", frames as f64 / fps as f64);
+    println!("  physical limit {limit:.2} s; wall time {wall:.2} s; ratio {:.3} (target 1.05 or less)", wall / limit);
+    let _ = std::fs::remove_dir_all(&dir);
+    Ok(())
+}
