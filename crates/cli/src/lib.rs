@@ -17,6 +17,7 @@ pub mod renders;
 pub mod report;
 pub mod rigfile;
 pub mod session;
+pub mod tradeoff;
 
 /// Exit codes of the binaries.
 pub mod exit {

@@ -60,6 +60,18 @@ struct Args {
     /// Simulated camera pixels per side (overrides the preset).
     #[arg(long)]
     camera_px: Option<u32>,
+    /// NDF table rings (cells: rings x 3 rings; overrides the preset).
+    #[arg(long)]
+    ndf_theta: Option<u32>,
+    /// k-means clusters for microfacet synthesis (overrides the preset).
+    #[arg(long)]
+    clusters: Option<u32>,
+    /// Skip microfacet synthesis (keep the partial NDFs).
+    #[arg(long)]
+    no_synthesis: bool,
+    /// Skip the analytic fits and the per-point model choice.
+    #[arg(long)]
+    no_analytic: bool,
     /// Capture only; do not fit.
     #[arg(long)]
     no_fit: bool,
@@ -121,7 +133,10 @@ fn main() -> ExitCode {
                 hdr: args.hdr,
                 grid: args.grid,
                 camera_px: args.camera_px,
-                ..Overrides::default()
+                ndf_theta: args.ndf_theta,
+                clusters: args.clusters,
+                no_synthesis: args.no_synthesis,
+                no_analytic: args.no_analytic,
             },
             rig_file: args.rig.clone(),
             sim_material: args.sim_material.clone(),

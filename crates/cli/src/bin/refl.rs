@@ -85,6 +85,18 @@ enum Cmd {
         #[arg(long)]
         cancel: bool,
     },
+    /// The speed/accuracy trade-off: simulated captures of SAMPLE at several
+    /// settings, each fitted and scored; writes DIR/tradeoff.json and
+    /// DIR/tradeoff.png (time against error, Pareto front marked).
+    Tradeoff {
+        sample: String,
+        #[arg(long)]
+        out: std::path::PathBuf,
+        /// Comma-separated settings (fast, fast-16-steps, fast-all-leds,
+        /// balanced-no-synthesis, balanced, balanced-ndf-24, best).
+        #[arg(long, default_value = cli::tradeoff::DEFAULT_SETTINGS)]
+        settings: String,
+    },
     /// Print performance figures (see each benchmark's --help).
     Bench {
         #[command(subcommand)]
@@ -237,6 +249,28 @@ fn main() -> ExitCode {
                 }
                 let socket = socket.unwrap_or_else(cli::daemon::default_socket);
                 cli::daemon::serve(&socket).await
+            }
+            Cmd::Tradeoff { sample, out, settings } => {
+                let mut rep = cli::progress::Reporter::new(cli::progress::Mode::Plain);
+                let rows = tokio::task::block_in_place(|| cli::tradeoff::run(&sample, &out, &settings, &mut rep))?;
+                println!(
+                    "{:24} {:>9} {:>8} {:>9} {:>8} {:>8}  pareto",
+                    "setting", "capture_s", "fit_s", "memory_mb", "render", "ndf"
+                );
+                for r in &rows {
+                    println!(
+                        "{:24} {:9.1} {:8.1} {:9.0} {:8.4} {:8.4}  {}",
+                        r.setting,
+                        r.capture_seconds,
+                        r.fit_seconds,
+                        r.peak_memory_mb.unwrap_or(f64::NAN),
+                        r.render_rel_rmse.unwrap_or(f64::NAN),
+                        r.ndf_rel_l2_full.unwrap_or(f64::NAN),
+                        if r.pareto { "*" } else { "" }
+                    );
+                }
+                println!("{}", out.join("tradeoff.png").display());
+                Ok(())
             }
             Cmd::Bench { which } => match which {
                 BenchCmd::Realtime { sample, steps, led_stride, fps } => {

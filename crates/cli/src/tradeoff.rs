@@ -1,0 +1,222 @@
+//! `refl tradeoff SAMPLE --out DIR`: the speed/accuracy trade-off, measured.
+//!
+//! Each setting (a quality preset, possibly with a knob changed) is a full
+//! simulated capture by the real `capture` binary in its own process (so
+//! its peak memory is its own), then `refl eval`'s scoring. The rows go to
+//! `tradeoff.json`; `tradeoff.png` plots total time (capture + fit) against
+//! the measured model's render error, with the Pareto front (no other
+//! setting is both faster and more accurate) drawn through its points.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use anyhow::{Context, Result, anyhow, bail};
+use serde::Serialize;
+
+use crate::eval::{EvalOptions, evaluate};
+use crate::progress::Reporter;
+
+/// The settings `refl tradeoff` knows: name, preset, extra `capture` args.
+pub const SETTINGS: &[(&str, &str, &[&str])] = &[
+    ("fast", "fast", &[]),
+    ("fast-16-steps", "fast", &["--steps", "16"]),
+    ("fast-all-leds", "fast", &["--led-stride", "1"]),
+    ("balanced-no-synthesis", "balanced", &["--no-synthesis"]),
+    ("balanced", "balanced", &[]),
+    ("balanced-ndf-24", "balanced", &["--ndf-theta", "24"]),
+    ("best", "best", &[]),
+];
+
+/// The default sweep (everything but `best`, which takes several minutes).
+pub const DEFAULT_SETTINGS: &str = "fast,fast-16-steps,fast-all-leds,balanced-no-synthesis,balanced";
+
+#[derive(Clone, Debug, Serialize)]
+pub struct Row {
+    pub setting: String,
+    pub quality: String,
+    pub args: Vec<String>,
+    pub capture_seconds: f64,
+    pub fit_seconds: f64,
+    pub total_seconds: f64,
+    pub peak_memory_mb: Option<f64>,
+    /// The measured model's (synthesized, else partial) render error.
+    pub render_rel_rmse: Option<f64>,
+    pub ndf_rel_l2_full: Option<f64>,
+    /// Every model's render error.
+    pub models: serde_json::Value,
+    pub holdout_rel_rmse: Option<f64>,
+    pub pareto: bool,
+}
+
+fn capture_exe() -> Result<PathBuf> {
+    let me = std::env::current_exe().context("cannot find this executable")?;
+    let p = me.with_file_name("capture");
+    if !p.is_file() {
+        bail!("{} not found: build both binaries (cargo build --release)", p.display());
+    }
+    Ok(p)
+}
+
+fn seconds(report: &serde_json::Value, key: &str) -> f64 {
+    report["timings"][key].as_f64().unwrap_or(0.0)
+}
+
+/// Run the sweep.
+pub fn run(sample: &str, out: &Path, settings: &str, rep: &mut Reporter) -> Result<Vec<Row>> {
+    let chosen: Vec<&(&str, &str, &[&str])> = settings
+        .split(',')
+        .map(|n| {
+            SETTINGS.iter().find(|(name, _, _)| *name == n.trim()).ok_or_else(|| {
+                anyhow!(
+                    "unknown setting '{n}': known are {}",
+                    SETTINGS.iter().map(|s| s.0).collect::<Vec<_>>().join(", ")
+                )
+            })
+        })
+        .collect::<Result<_>>()?;
+    if out.join("tradeoff.json").exists() {
+        bail!("{} already holds a trade-off; choose another --out", out.display());
+    }
+    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+    let exe = capture_exe()?;
+    let mut rows = Vec::new();
+    for (k, (name, quality, args)) in chosen.iter().enumerate() {
+        rep.stage("tradeoff", format!("{}/{}: {name}", k + 1, chosen.len()));
+        let dir = out.join(name);
+        let status = Command::new(&exe)
+            .args(["--sample", sample, "--quality", quality, "--no-daemon", "--out"])
+            .arg(&dir)
+            .args(*args)
+            .stdout(std::process::Stdio::null())
+            .status()
+            .with_context(|| format!("cannot run {}", exe.display()))?;
+        if !status.success() {
+            bail!("the capture for setting {name} failed ({status}); see above");
+        }
+        let report: serde_json::Value = serde_json::from_slice(&std::fs::read(dir.join("report.json"))?)?;
+        let ev = evaluate(&dir, &EvalOptions { render_px: 96, ..Default::default() }, rep)?;
+        let measured = ev.models.get("synthesized").or_else(|| ev.models.get("partial"));
+        let capture_seconds = seconds(&report, "capture_s");
+        let fit_seconds = seconds(&report, "fit_total_after_capture_s");
+        rows.push(Row {
+            setting: name.to_string(),
+            quality: quality.to_string(),
+            args: args.iter().map(|a| a.to_string()).collect(),
+            capture_seconds,
+            fit_seconds,
+            total_seconds: capture_seconds + fit_seconds,
+            peak_memory_mb: report["peak_memory_mb"].as_f64(),
+            render_rel_rmse: measured.and_then(|m| m.render_rel_rmse),
+            ndf_rel_l2_full: measured.and_then(|m| m.ndf_rel_l2_full),
+            models: serde_json::to_value(
+                ev.models
+                    .iter()
+                    .map(|(k, v)| (k.clone(), v.render_rel_rmse))
+                    .collect::<std::collections::BTreeMap<_, _>>(),
+            )?,
+            holdout_rel_rmse: ev.holdout.get("partial").and_then(|h| h.frame_rel_rmse),
+            pareto: false,
+        });
+    }
+    mark_pareto(&mut rows);
+    std::fs::write(out.join("tradeoff.json"), serde_json::to_vec_pretty(&rows)?)?;
+    chart(&out.join("tradeoff.png"), &rows)?;
+    Ok(rows)
+}
+
+/// A row is on the front when no other row is at least as fast and at
+/// least as accurate, and strictly better in one.
+pub fn mark_pareto(rows: &mut [Row]) {
+    let pts: Vec<(f64, f64)> =
+        rows.iter().map(|r| (r.total_seconds, r.render_rel_rmse.unwrap_or(f64::INFINITY))).collect();
+    for (i, r) in rows.iter_mut().enumerate() {
+        let (t, e) = pts[i];
+        r.pareto = e.is_finite()
+            && !pts.iter().enumerate().any(|(j, &(t2, e2))| j != i && t2 <= t && e2 <= e && (t2 < t || e2 < e));
+    }
+}
+
+/// Draw the chart: time (log scale) against error, points labelled, the
+/// front joined by a line.
+pub fn chart(path: &Path, rows: &[Row]) -> Result<()> {
+    let (w, h) = (900u32, 560u32);
+    let (left, right, top, bottom) = (80.0f64, 40.0f64, 50.0f64, 70.0f64);
+    let mut buf = vec![255u8; (w * h * 3) as usize];
+    let pts: Vec<(f64, f64, &Row)> =
+        rows.iter().filter_map(|r| r.render_rel_rmse.map(|e| (r.total_seconds.max(1e-3), e, r))).collect();
+    if pts.is_empty() {
+        bail!("no setting has an error to plot");
+    }
+    let (mut t0, mut t1) = pts.iter().fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.0), b.max(p.0)));
+    let (mut e0, mut e1) = pts.iter().fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.1), b.max(p.1)));
+    t0 = (t0 / 1.5).log10();
+    t1 = (t1 * 1.5).log10();
+    let pad = ((e1 - e0) * 0.15).max(0.01);
+    e0 = (e0 - pad).max(0.0);
+    e1 += pad;
+    let x = |t: f64| left + (t.log10() - t0) / (t1 - t0) * (w as f64 - left - right);
+    let y = |e: f64| top + (e1 - e) / (e1 - e0) * (h as f64 - top - bottom);
+    let put = |buf: &mut [u8], px: i64, py: i64, c: [u8; 3]| {
+        if px >= 0 && py >= 0 && (px as u32) < w && (py as u32) < h {
+            let k = ((py as u32 * w + px as u32) * 3) as usize;
+            buf[k..k + 3].copy_from_slice(&c);
+        }
+    };
+    let line = |buf: &mut [u8], a: (f64, f64), b: (f64, f64), c: [u8; 3]| {
+        let n = ((b.0 - a.0).abs().max((b.1 - a.1).abs()) as usize).max(1);
+        for s in 0..=n {
+            let f = s as f64 / n as f64;
+            put(buf, (a.0 + (b.0 - a.0) * f).round() as i64, (a.1 + (b.1 - a.1) * f).round() as i64, c);
+        }
+    };
+    let (xa, xb, ya, yb) = (left, w as f64 - right, top, h as f64 - bottom);
+    line(&mut buf, (xa, yb), (xb, yb), [0, 0, 0]);
+    line(&mut buf, (xa, ya), (xa, yb), [0, 0, 0]);
+    // Text is drawn light-on-dark by draw_text; draw it on an inverted copy.
+    let mut text = vec![0u8; buf.len()];
+    let label = |text: &mut [u8], px: f64, py: f64, size: f32, s: &str| {
+        render::output::draw_text(text, w, h, px as i32, py as i32, size, s);
+    };
+    // Time ticks at 1, 2, 5 x 10^k seconds.
+    for k in -1..5 {
+        for m in [1.0, 2.0, 5.0] {
+            let t = m * 10f64.powi(k);
+            if t.log10() < t0 || t.log10() > t1 {
+                continue;
+            }
+            let px = x(t);
+            line(&mut buf, (px, yb), (px, yb + 6.0), [0, 0, 0]);
+            label(&mut text, px - 10.0, yb + 8.0, 15.0, &format!("{t}"));
+        }
+    }
+    for k in 0..=5 {
+        let e = e0 + (e1 - e0) * k as f64 / 5.0;
+        let py = y(e);
+        line(&mut buf, (xa - 6.0, py), (xa, py), [0, 0, 0]);
+        label(&mut text, 8.0, py - 9.0, 15.0, &format!("{e:.3}"));
+    }
+    label(&mut text, w as f64 / 2.0 - 190.0, h as f64 - 32.0, 17.0, "capture + fit time (s, log scale)");
+    label(&mut text, 8.0, 10.0, 17.0, "render error of the measured model (relative RMSE); line: Pareto front");
+    let mut front: Vec<&(f64, f64, &Row)> = pts.iter().filter(|p| p.2.pareto).collect();
+    front.sort_by(|a, b| a.0.total_cmp(&b.0));
+    for pair in front.windows(2) {
+        line(&mut buf, (x(pair[0].0), y(pair[0].1)), (x(pair[1].0), y(pair[1].1)), [220, 60, 40]);
+    }
+    for (t, e, r) in &pts {
+        let (px, py) = (x(*t), y(*e));
+        let c = if r.pareto { [220, 60, 40] } else { [40, 90, 200] };
+        for dy in -4..=4 {
+            for dx in -4..=4 {
+                put(&mut buf, px as i64 + dx, py as i64 + dy, c);
+            }
+        }
+        label(&mut text, px + 8.0, py - 20.0, 15.0, &r.setting);
+    }
+    // Composite the text in black.
+    for (b, t) in buf.iter_mut().zip(&text) {
+        *b = ((*b as u16 * (255 - *t as u16)) / 255) as u8;
+    }
+    image::save_buffer(path, &buf, w, h, image::ExtendedColorType::Rgb8)
+        .with_context(|| format!("cannot write {}", path.display()))?;
+    Ok(())
+}
