@@ -233,3 +233,60 @@ async fn a_link_that_never_comes_back_ends_with_a_clear_error_and_leds_off() {
     assert!(fired.iter().all(|f| f.off.is_some()), "an LED was left on after the failure");
     sim.stop().await.unwrap();
 }
+
+/// Environment variable that turns this test binary into the host process
+/// of [`killing_the_host_leaves_the_leds_off_within_the_watchdog_time`].
+const HOST_PORT_ENV: &str = "REFLECTOMETER_TEST_HOST_PORT";
+
+/// The host side, run in a child process: connect, light LED 7 with a long
+/// maximum on-time, then keep the link alive until killed.
+async fn host_until_killed(path: PathBuf) -> ! {
+    let mut s = settings();
+    s.led_max_on_ms = 30_000;
+    let locator = PortLocator::Path { path };
+    let mut rig = Rig::open(SerialConnector { locator, baud: 1_000_000 }, s).await.expect("open rig");
+    rig.home().await.expect("home");
+    rig.led_on(7).await.expect("led on");
+    loop {
+        tokio::time::sleep(Duration::from_millis(100)).await;
+        let _ = rig.keepalive().await;
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn killing_the_host_leaves_the_leds_off_within_the_watchdog_time() {
+    if let Some(p) = std::env::var_os(HOST_PORT_ENV) {
+        host_until_killed(PathBuf::from(p)).await;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let world = World::new();
+    let sim = SimMcu::spawn_pty(fast_mcu(), FaultSpec::default(), world.clone(), Some(link_path(&dir))).await.unwrap();
+    // This very test, in a child process, as the host.
+    let mut child = std::process::Command::new(std::env::current_exe().unwrap())
+        .args(["killing_the_host_leaves_the_leds_off_within_the_watchdog_time", "--exact", "--nocapture"])
+        .env(HOST_PORT_ENV, link_path(&dir))
+        .stdout(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let t = Instant::now();
+    while !firings(&world).0.iter().any(|f| f.led == 7) {
+        assert!(t.elapsed() < Duration::from_secs(20), "the host never lit the LED");
+        assert!(child.try_wait().unwrap().is_none(), "the host exited");
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+    // Alive and keeping the link up: the LED stays on well past the watchdog time.
+    let watchdog = Duration::from_millis(firmware_protocol::timing::WATCHDOG_MS as u64);
+    tokio::time::sleep(watchdog * 2).await;
+    assert!(firings(&world).0.iter().all(|f| f.off.is_none()), "the LED went off while the host was alive");
+    child.kill().unwrap();
+    let killed = Instant::now();
+    child.wait().unwrap();
+    tokio::time::sleep(watchdog + Duration::from_millis(500)).await;
+    let (fired, _) = firings(&world);
+    let f = fired.iter().find(|f| f.led == 7).unwrap();
+    let (off, cause) = f.off.expect("the LED is still on after the host died");
+    assert_eq!(cause, OffCause::Watchdog);
+    let after = off.saturating_duration_since(killed);
+    assert!(after <= watchdog + Duration::from_millis(100), "off {after:?} after the kill");
+    sim.stop().await.unwrap();
+}

@@ -336,3 +336,72 @@ pub async fn realtime(sample: &str, steps: u32, led_stride: u8, fps: f32) -> Res
     let _ = std::fs::remove_dir_all(&dir);
     Ok(())
 }
+
+/// `refl bench camera`: simulated frames per second (render, noise and
+/// quantisation of one frame) at `px` x `px`, one LED lit.
+pub fn camera(sample: &str, px: u32, frames: u32) -> Result<f64> {
+    use sim::camera::{CameraTiming, LedTruth, SensorModel, SimCamera, SimCameraConfig};
+    let material = crate::capture::sim_material(sample, None)?;
+    let mut g = RigGeometry::default();
+    g.camera.width = px;
+    g.camera.height = px;
+    let cfg = SimCameraConfig {
+        geometry: g.clone(),
+        sensor: SensorModel::default(),
+        leds: LedTruth::realistic(g.bar.n_leds, 1),
+        timing: CameraTiming::Fast { time_scale: 0.0 },
+        seed: 1,
+        faults: sim::FaultSpec::default(),
+        rest_um: 0.0,
+    };
+    let mut cam = SimCamera::new(cfg, material, sim::World::new());
+    let _ = cam.render_direct(0, Some(0));
+    let t = Instant::now();
+    for k in 0..frames {
+        let x = -100_000 + (k as i32 * 7919) % 200_000;
+        let _ = cam.render_direct(x, Some((k % g.bar.n_leds as u32) as u8));
+    }
+    let fps = frames as f64 / t.elapsed().as_secs_f64();
+    println!("simulated camera, '{sample}', {px} x {px}: {fps:.1} frames/s ({frames} frames)");
+    Ok(fps)
+}
+
+/// `refl bench protocol`: the serial protocol over a real pseudo-terminal
+/// to the emulated MCU: status round trips per second, and the time the
+/// driver takes per LED firing (`SetLed` sent to its `Ack` received).
+pub async fn protocol(n: u32) -> Result<()> {
+    use rig::mcu::{PortLocator, Rig, SerialConnector};
+    let g = RigGeometry::default();
+    let cfg = crate::session::mcu_config(&g, 0.001);
+    let dir = std::env::temp_dir().join(format!("refl-bench-protocol-{}", std::process::id()));
+    std::fs::create_dir_all(&dir)?;
+    let link = dir.join("mcu");
+    let mcu = sim::SimMcu::spawn_pty(cfg, sim::FaultSpec::default(), sim::World::new(), Some(link.clone())).await?;
+    let settings = crate::session::rig_settings(&g, 0.001, 200);
+    let mut rig =
+        Rig::open(SerialConnector { locator: PortLocator::Path { path: link }, baud: 1_000_000 }, settings).await?;
+    rig.home().await?;
+    let t = Instant::now();
+    for _ in 0..n {
+        rig.status().await?;
+    }
+    let dt = t.elapsed().as_secs_f64();
+    println!(
+        "status round trips over a PTY: {:.0} per second ({:.1} us each, {n} round trips)",
+        n as f64 / dt,
+        dt / n as f64 * 1e6
+    );
+    let t = Instant::now();
+    for k in 0..n {
+        rig.led_on((k % 40) as u8).await?;
+    }
+    let dt = t.elapsed().as_secs_f64();
+    rig.all_off().await?;
+    println!("LED firings (SetLed to Ack): {:.1} us each ({n} firings)", dt / n as f64 * 1e6);
+    let s = rig.link_stats();
+    println!("link: {} commands, {} retransmits, mean round trip {:?}", s.commands, s.retransmits, s.mean_rtt());
+    rig.shutdown().await;
+    mcu.stop().await?;
+    let _ = std::fs::remove_dir_all(&dir);
+    Ok(())
+}

@@ -151,6 +151,22 @@ enum BenchCmd {
         #[arg(long, default_value_t = 30.0)]
         fps: f32,
     },
+    /// Simulated camera frames per second at --px (256 and 800 are the
+    /// issue's sizes).
+    Camera {
+        #[arg(long, default_value = "satin")]
+        sample: String,
+        #[arg(long, default_value_t = 256)]
+        px: u32,
+        #[arg(long, default_value_t = 50)]
+        frames: u32,
+    },
+    /// The serial protocol over a pseudo-terminal: round trips per second
+    /// and the driver's time per LED firing.
+    Protocol {
+        #[arg(long, default_value_t = 2000)]
+        n: u32,
+    },
     /// Microfacet synthesis: brute force, clustered and accelerated search
     /// on the same partial tables (time and NDF error against ground truth).
     Synthesis {
@@ -276,6 +292,10 @@ fn main() -> ExitCode {
                 BenchCmd::Realtime { sample, steps, led_stride, fps } => {
                     cli::bench::realtime(&sample, steps, led_stride, fps).await
                 }
+                BenchCmd::Camera { sample, px, frames } => {
+                    tokio::task::block_in_place(|| cli::bench::camera(&sample, px, frames)).map(|_| ())
+                }
+                BenchCmd::Protocol { n } => cli::bench::protocol(n).await,
                 BenchCmd::Fit { sample, points, steps, led_stride, ndf_theta, no_synthesis } => {
                     tokio::task::block_in_place(|| {
                         cli::bench::fit(&sample, points, steps, led_stride, ndf_theta, !no_synthesis)
