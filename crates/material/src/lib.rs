@@ -8,6 +8,7 @@
 pub mod data;
 pub mod io;
 pub mod point;
+pub mod rgl;
 pub mod view;
 
 pub use data::{Choice, ChoiceMap, Material, ModelMap, NdfKind, PartialFit};

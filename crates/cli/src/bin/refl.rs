@@ -97,6 +97,21 @@ enum Cmd {
         #[arg(long, default_value = cli::tradeoff::DEFAULT_SETTINGS)]
         settings: String,
     },
+    /// Import an RGL material-database file (.bsdf, isotropic) as a
+    /// homogeneous material: its measured NDF as the reference table, the
+    /// diffuse and specular albedo and Fresnel index fitted to its BRDF.
+    /// `capture --sim-material DIR` then scans it.
+    ImportRgl {
+        file: std::path::PathBuf,
+        #[arg(long)]
+        out: std::path::PathBuf,
+        /// NDF table rings (cells: rings x 3 rings).
+        #[arg(long, default_value_t = 32)]
+        ndf_theta: u32,
+        /// Side of the (square) sample, mm.
+        #[arg(long, default_value_t = 100.0)]
+        width_mm: f32,
+    },
     /// Print performance figures (see each benchmark's --help).
     Bench {
         #[command(subcommand)]
@@ -286,6 +301,19 @@ fn main() -> ExitCode {
                     );
                 }
                 println!("{}", out.join("tradeoff.png").display());
+                Ok(())
+            }
+            Cmd::ImportRgl { file, out, ndf_theta, width_mm } => {
+                if out.join("material.json").exists() {
+                    anyhow::bail!("{} already holds a material; choose another --out", out.display());
+                }
+                let grid = brdf::ndf::NdfGrid::new(ndf_theta, 3 * ndf_theta)
+                    .map_err(|e| anyhow::anyhow!("--ndf-theta {ndf_theta}: {e}"))?;
+                let b = material::rgl::RglBrdf::read(&file).map_err(|e| anyhow::anyhow!("{}: {e}", file.display()))?;
+                let name = file.file_stem().map_or("rgl".into(), |s| s.to_string_lossy().into_owned());
+                let (m, summary) = tokio::task::block_in_place(|| material::rgl::import(&b, &name, grid, width_mm));
+                material::write(&out, &m).map_err(|e| anyhow::anyhow!("writing {}: {e}", out.display()))?;
+                println!("{}", serde_json::to_string(&summary)?);
                 Ok(())
             }
             Cmd::Bench { which } => match which {
