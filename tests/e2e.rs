@@ -112,6 +112,17 @@ fn capture_fits_renders_and_every_refl_tool_reads_it() {
         lab.refl(&["render", s(&dir), "--model", "ward_aniso", "--light", "sky:30,40", "--px", "32", "-o", s(&png)]);
     assert_ok(&o, "refl render");
     assert!(std::fs::metadata(&png).unwrap().len() > 100);
+    // glTF export: a document whose buffer and images are where it says.
+    let gltf = lab.path("gltf/satin.gltf");
+    assert_ok(&lab.refl(&["export-gltf", s(&dir), "-o", s(&gltf)]), "refl export-gltf");
+    let doc: serde_json::Value = serde_json::from_slice(&std::fs::read(&gltf).unwrap()).unwrap();
+    assert_eq!(doc["asset"]["version"], "2.0");
+    let buffer = lab.path("gltf").join(doc["buffers"][0]["uri"].as_str().unwrap());
+    assert_eq!(std::fs::metadata(&buffer).unwrap().len(), doc["buffers"][0]["byteLength"].as_u64().unwrap());
+    for img in doc["images"].as_array().unwrap() {
+        assert!(lab.path("gltf").join(img["uri"].as_str().unwrap()).is_file());
+    }
+    assert!(doc["materials"][0]["extensions"]["KHR_materials_anisotropy"].is_object());
     let o = lab.refl(&["render", s(&dir), "--model", "nonesuch", "-o", s(&png)]);
     assert!(!o.status.success());
     assert!(stderr(&o).contains("ward_iso"), "the error lists the models it has: {}", stderr(&o));

@@ -8,6 +8,7 @@ pub mod capture;
 pub mod daemon;
 pub mod eval;
 pub mod fitjob;
+pub mod gltf;
 pub mod inspect;
 pub mod output;
 pub mod paths;

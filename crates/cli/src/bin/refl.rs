@@ -112,6 +112,15 @@ enum Cmd {
         #[arg(long, default_value_t = 100.0)]
         width_mm: f32,
     },
+    /// Export a fitted material to glTF 2.0 (anisotropic GGX through
+    /// KHR_materials_anisotropy, with textures) for ordinary renderers.
+    ExportGltf {
+        /// A material directory, or a capture directory holding `material/`.
+        dir: std::path::PathBuf,
+        /// Output `.gltf` (textures and buffer are written beside it).
+        #[arg(long, short)]
+        out: std::path::PathBuf,
+    },
     /// Print performance figures (see each benchmark's --help).
     Bench {
         #[command(subcommand)]
@@ -314,6 +323,14 @@ fn main() -> ExitCode {
                 let (m, summary) = tokio::task::block_in_place(|| material::rgl::import(&b, &name, grid, width_mm));
                 material::write(&out, &m).map_err(|e| anyhow::anyhow!("writing {}: {e}", out.display()))?;
                 println!("{}", serde_json::to_string(&summary)?);
+                Ok(())
+            }
+            Cmd::ExportGltf { dir, out } => {
+                let dir = if dir.join("material").is_dir() { dir.join("material") } else { dir };
+                let m = material::read(&dir).map_err(|e| anyhow::anyhow!("reading {}: {e}", dir.display()))?;
+                for f in cli::gltf::export(&m, &out)? {
+                    println!("{}", f.display());
+                }
                 Ok(())
             }
             Cmd::Bench { which } => match which {
