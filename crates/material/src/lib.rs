@@ -7,6 +7,7 @@
 
 pub mod data;
 pub mod io;
+pub mod merl;
 pub mod point;
 pub mod rgl;
 pub mod view;

@@ -391,7 +391,23 @@ fn fit_directions() -> Vec<(Vec3, Vec3)> {
 
 /// Import `brdf` as a homogeneous material on a `width_mm` square sample.
 pub fn import(brdf: &RglBrdf, name: &str, grid: NdfGrid, width_mm: f32) -> (Material, ImportSummary) {
-    let mut table = NdfTable::from_fn(grid, 4, |h| brdf.d(h));
+    let table = NdfTable::from_fn(grid, 4, |h| brdf.d(h));
+    let provenance = serde_json::json!({ "imported_from": "rgl", "description": brdf.description });
+    fit_homogeneous(brdf, table, name, width_mm, brdf.description.clone(), provenance)
+}
+
+/// A homogeneous material with NDF `table` (normalised here, marked fully
+/// observed) whose diffuse albedo, specular albedo and Fresnel index are
+/// fitted to `brdf`.
+pub fn fit_homogeneous(
+    brdf: &dyn Brdf,
+    mut table: NdfTable,
+    name: &str,
+    width_mm: f32,
+    description: String,
+    provenance: serde_json::Value,
+) -> (Material, ImportSummary) {
+    let grid = table.grid();
     table.normalize();
     for c in 0..grid.len() {
         table.coverage_mut().set(c, true);
@@ -411,7 +427,7 @@ pub fn import(brdf: &RglBrdf, name: &str, grid: NdfGrid, width_mm: f32) -> (Mate
         partial: None,
         models: Default::default(),
         choice: None,
-        provenance: serde_json::json!({ "imported_from": "rgl", "description": brdf.description }),
+        provenance: provenance.clone(),
     };
     let dirs = fit_directions();
     let truth: Vec<Rgb> = dirs.iter().map(|&(i, o)| brdf.eval(i, o)).collect();
@@ -465,6 +481,6 @@ pub fn import(brdf: &RglBrdf, name: &str, grid: NdfGrid, width_mm: f32) -> (Mate
     }
     let (residual, eta, kd, ks) = best.unwrap_or((f64::NAN, 1.5, [0.0; 3], [0.0; 3]));
     let m = base(eta, ks, kd);
-    let s = ImportSummary { description: brdf.description.clone(), kd, ks, eta, residual: residual as f32 };
+    let s = ImportSummary { description, kd, ks, eta, residual: residual as f32 };
     (m, s)
 }

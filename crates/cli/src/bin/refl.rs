@@ -121,6 +121,20 @@ enum Cmd {
         #[arg(long, short)]
         out: std::path::PathBuf,
     },
+    /// Import a MERL BRDF database file (.binary) as a homogeneous
+    /// material: the NDF from its retro-reflection slice, the diffuse and
+    /// specular albedo and Fresnel index fitted to the whole BRDF.
+    ImportMerl {
+        file: std::path::PathBuf,
+        #[arg(long)]
+        out: std::path::PathBuf,
+        /// NDF table rings (cells: rings x 3 rings).
+        #[arg(long, default_value_t = 32)]
+        ndf_theta: u32,
+        /// Side of the (square) sample, mm.
+        #[arg(long, default_value_t = 100.0)]
+        width_mm: f32,
+    },
     /// Print performance figures (see each benchmark's --help).
     Bench {
         #[command(subcommand)]
@@ -208,6 +222,32 @@ enum BenchCmd {
         #[arg(long)]
         clusters: Option<u32>,
     },
+}
+
+/// `refl import-rgl` and `refl import-merl`.
+fn import(
+    rgl: bool,
+    file: &std::path::Path,
+    out: &std::path::Path,
+    ndf_theta: u32,
+    width_mm: f32,
+) -> anyhow::Result<()> {
+    if out.join("material.json").exists() {
+        anyhow::bail!("{} already holds a material; choose another --out", out.display());
+    }
+    let grid = brdf::ndf::NdfGrid::new(ndf_theta, 3 * ndf_theta)
+        .map_err(|e| anyhow::anyhow!("--ndf-theta {ndf_theta}: {e}"))?;
+    let name = file.file_stem().map_or("imported".into(), |s| s.to_string_lossy().into_owned());
+    let (m, summary) = if rgl {
+        let b = material::rgl::RglBrdf::read(file).map_err(|e| anyhow::anyhow!("{}: {e}", file.display()))?;
+        tokio::task::block_in_place(|| material::rgl::import(&b, &name, grid, width_mm))
+    } else {
+        let b = material::merl::MerlBrdf::read(file).map_err(|e| anyhow::anyhow!("{}: {e}", file.display()))?;
+        tokio::task::block_in_place(|| material::merl::import(&b, &name, grid, width_mm))
+    };
+    material::write(out, &m).map_err(|e| anyhow::anyhow!("writing {}: {e}", out.display()))?;
+    println!("{}", serde_json::to_string(&summary)?);
+    Ok(())
 }
 
 fn main() -> ExitCode {
@@ -312,19 +352,8 @@ fn main() -> ExitCode {
                 println!("{}", out.join("tradeoff.png").display());
                 Ok(())
             }
-            Cmd::ImportRgl { file, out, ndf_theta, width_mm } => {
-                if out.join("material.json").exists() {
-                    anyhow::bail!("{} already holds a material; choose another --out", out.display());
-                }
-                let grid = brdf::ndf::NdfGrid::new(ndf_theta, 3 * ndf_theta)
-                    .map_err(|e| anyhow::anyhow!("--ndf-theta {ndf_theta}: {e}"))?;
-                let b = material::rgl::RglBrdf::read(&file).map_err(|e| anyhow::anyhow!("{}: {e}", file.display()))?;
-                let name = file.file_stem().map_or("rgl".into(), |s| s.to_string_lossy().into_owned());
-                let (m, summary) = tokio::task::block_in_place(|| material::rgl::import(&b, &name, grid, width_mm));
-                material::write(&out, &m).map_err(|e| anyhow::anyhow!("writing {}: {e}", out.display()))?;
-                println!("{}", serde_json::to_string(&summary)?);
-                Ok(())
-            }
+            Cmd::ImportRgl { file, out, ndf_theta, width_mm } => import(true, &file, &out, ndf_theta, width_mm),
+            Cmd::ImportMerl { file, out, ndf_theta, width_mm } => import(false, &file, &out, ndf_theta, width_mm),
             Cmd::ExportGltf { dir, out } => {
                 let dir = if dir.join("material").is_dir() { dir.join("material") } else { dir };
                 let m = material::read(&dir).map_err(|e| anyhow::anyhow!("reading {}: {e}", dir.display()))?;
