@@ -177,6 +177,22 @@ fn injected_faults_are_survived_and_reported() {
     assert!(!report["recoveries"].as_array().unwrap().is_empty(), "the reboot is recorded");
     // Every shot was taken once the link recovered: the same material.
     same_files(&lab.path("clean/material"), &lab.path("faulty/material"), MATERIAL_FILES);
+
+    // A camera that misses a frame (long enough for the LED's maximum
+    // on-time and the rig's watchdog to pass), flags and repeats frames,
+    // and is unplugged: retakes, never a frame assigned to the wrong LED.
+    let o = lab.capture(
+        "satin",
+        "camera",
+        &["--sim-faults", "frame-timeout-at=60,error-frame=0.02,stale-frame=0.02,camera-unplug-at=150"],
+    );
+    assert_ok(&o, "capture with camera faults");
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(lab.path("camera/report.json")).unwrap()).unwrap();
+    assert!(report["frames"]["retakes"].as_u64().unwrap() > 0, "{}", report["frames"]);
+    let clean: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(lab.path("clean/report.json")).unwrap()).unwrap();
+    assert_eq!(report["frames"]["committed"], clean["frames"]["committed"], "every shot exactly once");
 }
 
 #[test]

@@ -54,9 +54,9 @@ struct Dwell {
 impl Exposer for Dwell {
     type Item = (Instant, Instant);
     type Error = RigError;
-    async fn expose(&mut self, _shot: &Shot, lit_at: Instant) -> Result<Self::Item, RigError> {
+    async fn expose(&mut self, _shot: &Shot, lit_at: Instant) -> Result<Option<Self::Item>, RigError> {
         tokio::time::sleep(self.dwell).await;
-        Ok((lit_at, Instant::now()))
+        Ok(Some((lit_at, Instant::now())))
     }
     async fn commit(&mut self, shot: &Shot, item: Self::Item) -> Result<(), RigError> {
         self.committed.push((*shot, item.0, item.1));

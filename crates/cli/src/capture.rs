@@ -205,8 +205,13 @@ struct Shooter<'a, C: Camera> {
     taken: u64,
     led_max_on: Duration,
     discarded: u64,
+    /// Consecutive frames that ended after their LED's maximum on-time.
+    late: u32,
 }
 
+/// Frames in a row that may arrive too late for their LED before the
+/// capture gives up.
+const LATE_RETAKES: u32 = 3;
 /// A camera that does not deliver is asked again this many times.
 const FRAME_RETRIES: u32 = 3;
 /// How long a camera that disappeared may take to come back.
@@ -240,7 +245,7 @@ impl<C: Camera> Exposer for Shooter<'_, C> {
     type Item = (Frame, tokio::time::Instant);
     type Error = anyhow::Error;
 
-    async fn expose(&mut self, shot: &Shot, lit_at: tokio::time::Instant) -> Result<Self::Item> {
+    async fn expose(&mut self, shot: &Shot, lit_at: tokio::time::Instant) -> Result<Option<Self::Item>> {
         if self.stop_after.is_some_and(|n| self.taken >= n) {
             return Err(Interrupted.into());
         }
@@ -253,13 +258,31 @@ impl<C: Camera> Exposer for Shooter<'_, C> {
         let f = self.frame(lit_at, exposure_us).await?;
         let deadline = clock::to_mono(lit_at + self.led_max_on);
         if f.meta.exposure_end > deadline {
-            bail!(
-                "the exposure ({exposure_us} us) outlasts the LEDs' maximum on-time ({} ms); shorten the exposure",
-                self.led_max_on.as_millis()
-            );
+            // The LED may have gone off during this exposure.
+            if Duration::from_micros(exposure_us as u64) >= self.led_max_on {
+                bail!(
+                    "the exposure ({exposure_us} us) outlasts the LEDs' maximum on-time ({} ms); shorten the exposure",
+                    self.led_max_on.as_millis()
+                );
+            }
+            self.late += 1;
+            if self.late > LATE_RETAKES {
+                bail!(
+                    "the camera delivered {} frames in a row after the LED's maximum on-time ({} ms); check the \
+                     camera's frame rate and trigger settings",
+                    self.late,
+                    self.led_max_on.as_millis()
+                );
+            }
+            self.rep.warn(format!(
+                "step {} LED {}: the frame ended after the LED's maximum on-time; taking it again",
+                shot.step, shot.led
+            ));
+            return Ok(None);
         }
+        self.late = 0;
         self.taken += 1;
-        Ok((f, lit_at))
+        Ok(Some((f, lit_at)))
     }
 
     async fn commit(&mut self, shot: &Shot, item: Self::Item) -> Result<()> {
@@ -546,6 +569,7 @@ async fn capture_frames<K: Connector, C: Camera>(
             taken: 0,
             led_max_on,
             discarded: 0,
+            late: 0,
         };
         let stats = sequence::run(rig, &todo, &mut shooter).await?;
         anyhow::Ok(stats)

@@ -34,7 +34,11 @@ pub trait Exposer {
     type Item: Send;
     type Error: From<RigError>;
     /// Take the exposure for `shot`; the LED has been lit since `lit_at`.
-    fn expose(&mut self, shot: &Shot, lit_at: Instant) -> impl Future<Output = Result<Self::Item, Self::Error>>;
+    /// `None` asks for the shot again with the LED lit afresh (the exposure
+    /// is unusable, e.g. it ended after the LED's maximum on-time because
+    /// the camera was late); the exposer bounds how often it asks.
+    fn expose(&mut self, shot: &Shot, lit_at: Instant)
+    -> impl Future<Output = Result<Option<Self::Item>, Self::Error>>;
     /// An exposure the rig confirmed.
     fn commit(&mut self, shot: &Shot, item: Self::Item) -> impl Future<Output = Result<(), Self::Error>>;
     /// An exposure discarded because the rig recovered while it was taken.
@@ -99,7 +103,11 @@ async fn run_inner<C: Connector, E: Exposer>(
             }
         }
         let e = rig.epoch();
-        let item = exposer.expose(&shot, lit_at).await?;
+        let Some(item) = exposer.expose(&shot, lit_at).await? else {
+            // Unusable: light it again (the next pass re-fires the LED).
+            stats.retakes += 1;
+            continue;
+        };
         pending = Some((i, item, e));
         i += 1;
         if i == shots.len() {

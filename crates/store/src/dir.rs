@@ -344,3 +344,19 @@ fn decode_png(bytes: &[u8], e: &ManifestEntry) -> Result<Frame, String> {
     }
     Ok(Frame { width: e.width, height: e.height, layout: e.layout, bit_depth: e.bit_depth, data, meta: e.meta })
 }
+
+#[cfg(test)]
+mod disk_full {
+    use super::*;
+
+    /// A real ENOSPC (writing to /dev/full) becomes the disk-full error,
+    /// which tells the operator what to do and that nothing is lost.
+    #[test]
+    fn a_full_disk_is_named_with_what_to_do() {
+        let e = std::fs::write("/dev/full", b"frame").expect_err("/dev/full accepts nothing");
+        let err = io_err("cannot write frame", Path::new("/x/frames/f.png"), e, Path::new("/x"));
+        assert!(matches!(err, StoreError::DiskFull { .. }), "{err:?}");
+        let msg = err.to_string();
+        assert!(msg.contains("full") && msg.contains("--resume /x") && msg.contains("nothing stored"), "{msg}");
+    }
+}
