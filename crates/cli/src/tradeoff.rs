@@ -11,7 +11,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use anyhow::{Context, Result, anyhow, bail};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::eval::{EvalOptions, evaluate};
 use crate::progress::Reporter;
@@ -30,7 +30,7 @@ pub const SETTINGS: &[(&str, &str, &[&str])] = &[
 /// The default sweep (everything but `best`, which takes several minutes).
 pub const DEFAULT_SETTINGS: &str = "fast,fast-16-steps,fast-all-leds,balanced-no-synthesis,balanced";
 
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Row {
     pub setting: String,
     pub quality: String,
@@ -202,7 +202,12 @@ pub fn chart(path: &Path, rows: &[Row]) -> Result<()> {
     for pair in front.windows(2) {
         line(&mut buf, (x(pair[0].0), y(pair[0].1)), (x(pair[1].0), y(pair[1].1)), [220, 60, 40]);
     }
-    for (t, e, r) in &pts {
+    // Labels alternate above and below the points (in time order), so
+    // neighbours do not overwrite each other.
+    let mut order: Vec<usize> = (0..pts.len()).collect();
+    order.sort_by(|&a, &b| pts[a].0.total_cmp(&pts[b].0));
+    for (k, &idx) in order.iter().enumerate() {
+        let (t, e, r) = &pts[idx];
         let (px, py) = (x(*t), y(*e));
         let c = if r.pareto { [220, 60, 40] } else { [40, 90, 200] };
         for dy in -4..=4 {
@@ -210,7 +215,7 @@ pub fn chart(path: &Path, rows: &[Row]) -> Result<()> {
                 put(&mut buf, px as i64 + dx, py as i64 + dy, c);
             }
         }
-        label(&mut text, px + 8.0, py - 20.0, 15.0, &r.setting);
+        label(&mut text, px + 8.0, if k % 2 == 0 { py - 22.0 } else { py + 6.0 }, 15.0, &r.setting);
     }
     // Composite the text in black.
     for (b, t) in buf.iter_mut().zip(&text) {
@@ -219,4 +224,51 @@ pub fn chart(path: &Path, rows: &[Row]) -> Result<()> {
     image::save_buffer(path, &buf, w, h, image::ExtendedColorType::Rgb8)
         .with_context(|| format!("cannot write {}", path.display()))?;
     Ok(())
+}
+
+/// Redraw `tradeoff.png` from the `tradeoff.json` in `out`.
+pub fn replot(out: &Path) -> Result<Vec<Row>> {
+    let p = out.join("tradeoff.json");
+    let rows: Vec<Row> =
+        serde_json::from_slice(&std::fs::read(&p).with_context(|| format!("cannot read {}", p.display()))?)
+            .with_context(|| format!("{} is not a trade-off table", p.display()))?;
+    chart(&out.join("tradeoff.png"), &rows)?;
+    Ok(rows)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn row(name: &str, t: f64, e: f64) -> Row {
+        Row {
+            setting: name.into(),
+            quality: "fast".into(),
+            args: Vec::new(),
+            capture_seconds: t,
+            fit_seconds: 0.0,
+            total_seconds: t,
+            peak_memory_mb: None,
+            render_rel_rmse: Some(e),
+            ndf_rel_l2_full: None,
+            models: serde_json::Value::Null,
+            holdout_rel_rmse: None,
+            pareto: false,
+        }
+    }
+
+    #[test]
+    fn the_front_holds_exactly_the_undominated_settings() {
+        let mut rows =
+            vec![row("a", 1.0, 0.3), row("b", 2.0, 0.2), row("c", 3.0, 0.25), row("d", 4.0, 0.1), row("e", 4.0, 0.1)];
+        mark_pareto(&mut rows);
+        let front: Vec<&str> = rows.iter().filter(|r| r.pareto).map(|r| r.setting.as_str()).collect();
+        // c is beaten by b; d and e tie (neither strictly better), both stay.
+        assert_eq!(front, ["a", "b", "d", "e"]);
+        let dir = std::env::temp_dir().join(format!("tradeoff-test-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        chart(&dir.join("t.png"), &rows).unwrap();
+        assert!(std::fs::metadata(dir.join("t.png")).unwrap().len() > 1000);
+        let _ = std::fs::remove_dir_all(&dir);
+    }
 }

@@ -96,6 +96,9 @@ enum Cmd {
         /// balanced-no-synthesis, balanced, balanced-ndf-24, best).
         #[arg(long, default_value = cli::tradeoff::DEFAULT_SETTINGS)]
         settings: String,
+        /// Only redraw DIR/tradeoff.png from DIR/tradeoff.json.
+        #[arg(long)]
+        replot: bool,
     },
     /// Import an RGL material-database file (.bsdf, isotropic) as a
     /// homogeneous material: its measured NDF as the reference table, the
@@ -330,9 +333,13 @@ fn main() -> ExitCode {
                 let socket = socket.unwrap_or_else(cli::daemon::default_socket);
                 cli::daemon::serve(&socket).await
             }
-            Cmd::Tradeoff { sample, out, settings } => {
+            Cmd::Tradeoff { sample, out, settings, replot } => {
                 let mut rep = cli::progress::Reporter::new(cli::progress::Mode::Plain);
-                let rows = tokio::task::block_in_place(|| cli::tradeoff::run(&sample, &out, &settings, &mut rep))?;
+                let rows = if replot {
+                    cli::tradeoff::replot(&out)?
+                } else {
+                    tokio::task::block_in_place(|| cli::tradeoff::run(&sample, &out, &settings, &mut rep))?
+                };
                 println!(
                     "{:24} {:>9} {:>8} {:>9} {:>8} {:>8}  pareto",
                     "setting", "capture_s", "fit_s", "memory_mb", "render", "ndf"
