@@ -60,7 +60,7 @@ struct Args {
     /// Simulated camera pixels per side (overrides the preset).
     #[arg(long)]
     camera_px: Option<u32>,
-    /// NDF table rings (cells: rings x 3 rings; overrides the preset).
+    /// NDF table rings (the table is RINGS x 3*RINGS cells; overrides the preset).
     #[arg(long)]
     ndf_theta: Option<u32>,
     /// k-means clusters for microfacet synthesis (overrides the preset).

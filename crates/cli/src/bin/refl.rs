@@ -108,7 +108,7 @@ enum Cmd {
         file: std::path::PathBuf,
         #[arg(long)]
         out: std::path::PathBuf,
-        /// NDF table rings (cells: rings x 3 rings).
+        /// NDF table rings (the table is RINGS x 3*RINGS cells).
         #[arg(long, default_value_t = 32)]
         ndf_theta: u32,
         /// Side of the (square) sample, mm.
@@ -131,7 +131,7 @@ enum Cmd {
         file: std::path::PathBuf,
         #[arg(long)]
         out: std::path::PathBuf,
-        /// NDF table rings (cells: rings x 3 rings).
+        /// NDF table rings (the table is RINGS x 3*RINGS cells).
         #[arg(long, default_value_t = 32)]
         ndf_theta: u32,
         /// Side of the (square) sample, mm.
@@ -173,7 +173,7 @@ enum BenchCmd {
         steps: u32,
         #[arg(long, default_value_t = 1)]
         led_stride: u32,
-        /// NDF table rings (cells: rings x 3 rings).
+        /// NDF table rings (the table is RINGS x 3*RINGS cells).
         #[arg(long, default_value_t = 16)]
         ndf_theta: u32,
         /// Stop after the per-point fit (no synthesis, no refit).
