@@ -208,6 +208,22 @@ enum BenchCmd {
         #[arg(long, default_value_t = 2000)]
         n: u32,
     },
+    /// The accelerated synthesis's time at scale (default: the talk's
+    /// 640,000 points and 1,000 rotation angles) on partial tables made
+    /// directly from a built-in material's NDFs.
+    SynthesisScale {
+        #[arg(long, default_value = "satin")]
+        sample: String,
+        #[arg(long, default_value_t = 640_000)]
+        points: usize,
+        #[arg(long, default_value_t = 1000)]
+        clusters: u32,
+        #[arg(long, default_value_t = 1000)]
+        rotations: u32,
+        /// Half-angle of the observed cone, degrees.
+        #[arg(long, default_value_t = 25.0)]
+        cone_deg: f32,
+    },
     /// Microfacet synthesis: brute force, clustered and accelerated search
     /// on the same partial tables (time and NDF error against ground truth).
     Synthesis {
@@ -377,6 +393,11 @@ fn main() -> ExitCode {
                     tokio::task::block_in_place(|| cli::bench::camera(&sample, px, frames)).map(|_| ())
                 }
                 BenchCmd::Protocol { n } => cli::bench::protocol(n).await,
+                BenchCmd::SynthesisScale { sample, points, clusters, rotations, cone_deg } => {
+                    tokio::task::block_in_place(|| {
+                        cli::bench::synthesis_scale(&sample, points, clusters, rotations, cone_deg)
+                    })
+                }
                 BenchCmd::Fit { sample, points, steps, led_stride, ndf_theta, no_synthesis } => {
                     tokio::task::block_in_place(|| {
                         cli::bench::fit(&sample, points, steps, led_stride, ndf_theta, !no_synthesis)

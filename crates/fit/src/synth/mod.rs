@@ -353,7 +353,12 @@ fn nearest(db: &[f32], queries: &[f32], dim: usize, n: usize) -> Vec<Vec<usize>>
                 }
                 d.truncate(k);
                 d.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-                d.into_iter().map(|x| x.1).collect()
+                // A fresh vector: `into_iter().collect()` would reuse (and
+                // keep) the scan buffer of every entry, for every query,
+                // which made memory grow as N x clusters x rotations.
+                let mut out = Vec::with_capacity(k);
+                out.extend(d.iter().map(|x| x.1));
+                out
             })
             .collect()
     })
