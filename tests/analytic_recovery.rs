@@ -23,6 +23,8 @@
 //!   wavelength`; the slope within 15% and the predicted BRDF over the
 //!   observed directions within 10%.
 
+// Shared with the NDF tests; this file uses only the capture part.
+#[allow(dead_code)]
 #[path = "support/simfit.rs"]
 mod simfit;
 

@@ -32,14 +32,20 @@ impl Lab {
         c
     }
 
+    /// A `capture` of a small simulated sample (`steps` gantry steps) into `out`.
+    fn capture_cmd(&self, sample: &str, out: &str, steps: u32) -> Command {
+        let mut c = self.cmd(CAPTURE);
+        c.args(["--sample", sample, "--quality", "fast", "--grid", "12", "--camera-px", "64"])
+            .arg("--steps")
+            .arg(steps.to_string())
+            .arg("--out")
+            .arg(self.path(out));
+        c
+    }
+
     /// `capture` of a small simulated sample into `out`, with extra args.
     fn capture(&self, sample: &str, out: &str, extra: &[&str]) -> Output {
-        let mut c = self.cmd(CAPTURE);
-        c.args(["--sample", sample, "--quality", "fast", "--steps", "12", "--grid", "12", "--camera-px", "64"])
-            .arg("--out")
-            .arg(self.path(out))
-            .args(extra);
-        c.output().unwrap()
+        self.capture_cmd(sample, out, 12).args(extra).output().unwrap()
     }
 
     fn refl(&self, args: &[&str]) -> Output {
@@ -145,13 +151,7 @@ fn sigint_stops_the_capture_and_keeps_what_was_taken() {
     let lab = Lab::new();
     // Calibrate first so the signal lands in the capture itself.
     assert_ok(&lab.capture("satin", "warmup", &["--no-fit"]), "warm-up capture");
-    let mut c = lab.cmd(CAPTURE);
-    c.args(["--sample", "satin", "--quality", "fast", "--steps", "64", "--grid", "12", "--camera-px", "64"])
-        .arg("--out")
-        .arg(lab.path("sig"))
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped());
-    let mut child = c.spawn().unwrap();
+    let mut child = lab.capture_cmd("satin", "sig", 64).stdout(Stdio::null()).stderr(Stdio::piped()).spawn().unwrap();
     wait_for_bytes(&mut child, &lab.path("sig/manifest.jsonl"), 2000);
     // SAFETY: plain kill(2) on our own child's pid.
     unsafe { libc::kill(child.id() as i32, libc::SIGINT) };
@@ -239,13 +239,7 @@ fn wait_for_bytes(child: &mut std::process::Child, path: &Path, bytes: u64) {
 fn kill_9_mid_capture_resumes_without_loss_to_the_same_material() {
     let lab = Lab::new();
     assert_ok(&lab.capture("satin", "clean", &[]), "clean capture");
-    let mut c = lab.cmd(CAPTURE);
-    c.args(["--sample", "satin", "--quality", "fast", "--steps", "12", "--grid", "12", "--camera-px", "64"])
-        .arg("--out")
-        .arg(lab.path("killed"))
-        .stdout(Stdio::null())
-        .stderr(Stdio::null());
-    let mut child = c.spawn().unwrap();
+    let mut child = lab.capture_cmd("satin", "killed", 12).stdout(Stdio::null()).stderr(Stdio::null()).spawn().unwrap();
     wait_for_bytes(&mut child, &lab.path("killed/manifest.jsonl"), 6000);
     child.kill().unwrap();
     child.wait().unwrap();
@@ -285,16 +279,14 @@ fn the_daemon_runs_one_capture_at_a_time_and_capture_uses_it() {
     let mode = std::fs::metadata(&socket).unwrap().permissions().mode() & 0o777;
     assert_eq!(mode, 0o660, "socket mode {mode:o}");
 
-    let mut first = lab.cmd(CAPTURE);
-    first
-        .args(["--sample", "satin", "--quality", "fast", "--steps", "48", "--grid", "12", "--camera-px", "64"])
-        .arg("--out")
-        .arg(lab.path("one"))
+    let mut first = lab
+        .capture_cmd("satin", "one", 48)
         .arg("--json")
         .env("REFLECTOMETER_SOCKET", &socket)
         .stdout(Stdio::piped())
-        .stderr(Stdio::piped());
-    let mut first = first.spawn().unwrap();
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
     wait_for_bytes(&mut first, &lab.path("one/manifest.jsonl"), 2000);
 
     // A second capture while the first runs is refused at once, touching nothing.

@@ -30,7 +30,7 @@ use frame::{BayerPattern, Frame, FrameFlags, FrameMeta, Layout, MonoNs};
 use glam::{Vec2, Vec3};
 use material::{PointMaterial, SvBrdf};
 use rand::{Rng, SeedableRng};
-use rand_distr::{Distribution, Normal};
+use rand_distr::{Distribution, Normal, StandardNormal};
 use rand_pcg::Pcg64;
 use rayon::prelude::*;
 use rig::camera::{AppliedSettings, Camera, CameraError, CameraSettings, FrameFilter, Verdict};
@@ -302,8 +302,8 @@ impl SimCamera {
         let mut data = vec![0u16; w * h];
         data.par_chunks_mut(w).enumerate().for_each(|(row, out)| {
             let mut rng = Pcg64::seed_from_u64(seed ^ (row as u64).wrapping_mul(0xA24B_AED4_963E_E407));
-            let read =
-                Normal::new(0.0f32, sensor.read_noise_e.max(0.0)).unwrap_or_else(|_| Normal::new(0.0, 0.0).unwrap());
+            // A non-finite read noise (a broken sensor model) reads as none.
+            let read_sd = if sensor.read_noise_e.is_finite() { sensor.read_noise_e.max(0.0) } else { 0.0 };
             for (col, dn) in out.iter_mut().enumerate() {
                 let px = &pixels[row * w + col];
                 let mut radiance = 0.0f32;
@@ -329,7 +329,7 @@ impl SimCamera {
                 } else {
                     rand_distr::Poisson::new(mean_e.max(1e-6) as f64).map(|p| p.sample(&mut rng) as f32).unwrap_or(0.0)
                 };
-                let e = shot.min(sensor.full_well_e) + read.sample(&mut rng);
+                let e = shot.min(sensor.full_well_e) + read_sd * rng.sample::<f32, _>(StandardNormal);
                 let v = e * gain / e_per_dn + sensor.black_level_dn;
                 *dn = v.round().clamp(0.0, max_dn) as u16;
             }

@@ -208,12 +208,9 @@ fn ndf_error(s: &Synthetic, flags: &[u32], tables: &TableSet) -> f64 {
         if t.normalize() <= 0.0 {
             continue;
         }
-        let est = tables.get(p);
-        for c in 0..grid.len() {
-            let w = grid.cos_measure(c / grid.n_phi as usize) as f64;
-            let (a, b) = (est.values()[c] as f64, t.values()[c] as f64);
-            num += w * (a - b) * (a - b);
-            den += w * b * b;
+        if let Some((n, d)) = tables.get(p).l2_sums(&t, |_| true) {
+            num += n;
+            den += d;
         }
     }
     (num / den.max(1e-30)).sqrt()

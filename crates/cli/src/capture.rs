@@ -76,6 +76,18 @@ impl std::fmt::Display for Interrupted {
 impl std::error::Error for Interrupted {}
 
 /// The simulated sample: a built-in material or a stored one.
+/// The material a simulated capture scanned (its ground truth); `None` for
+/// a capture made on hardware.
+pub fn ground_truth(info: &CaptureInfo) -> Result<Option<Arc<dyn SvBrdf>>> {
+    match &info.simulated {
+        Some(s) => Ok(Some(sim_material(
+            s.material.as_deref().unwrap_or(&info.sample),
+            s.material_dir.as_deref().map(Path::new),
+        )?)),
+        None => Ok(None),
+    }
+}
+
 pub fn sim_material(name: &str, dir: Option<&Path>) -> Result<Arc<dyn SvBrdf>> {
     if let Some(d) = dir {
         let m = material::read(d).with_context(|| format!("--sim-material {}", d.display()))?;
@@ -404,9 +416,8 @@ pub async fn run(req: CaptureRequest, rep: &mut Reporter, cancel: watch::Receive
         );
     }
     let sample = info.sample.clone();
-    let material = match &info.simulated {
-        Some(s) => sim_material(s.material.as_deref().unwrap_or(&sample), s.material_dir.as_deref().map(Path::new))?,
-        None => bail!("this capture was made on hardware; resume it with the same hardware rig"),
+    let Some(material) = ground_truth(&info)? else {
+        bail!("this capture was made on hardware; resume it with the same hardware rig")
     };
     let faults = if resume {
         FaultSpec::parse(info.simulated.as_ref().map_or("", |s| s.faults.as_str())).unwrap_or(faults)
@@ -493,15 +504,6 @@ pub async fn run(req: CaptureRequest, rep: &mut Reporter, cancel: watch::Receive
         Some(job) => Some(output::finish_fit(job, &info, &q, &root, rep, &mut report).await?),
         None => None,
     };
-    if let Some(mdir) = &material_dir {
-        let t = Instant::now();
-        let files = tokio::task::block_in_place(|| output::write_renders(&root, mdir, &info, rep))?;
-        report.time("renders_s", t.elapsed().as_secs_f64());
-        rep.stage(
-            "render",
-            format!("{} files in {} ({:.1} s)", files.len(), root.join("renders").display(), t.elapsed().as_secs_f64()),
-        );
-    }
     report.time("total_s", started.elapsed().as_secs_f64());
     report.peak_memory_mb = report::peak_memory_mb();
     report.material = material_dir.as_ref().map(|p| p.display().to_string());

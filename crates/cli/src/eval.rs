@@ -36,9 +36,10 @@ use serde::Serialize;
 use setup::SampleArea;
 use store::CaptureDir;
 
-use crate::capture::sim_material;
+use crate::capture::ground_truth;
 use crate::presets::Quality;
 use crate::progress::Reporter;
+use crate::renders::Lighting;
 
 /// One novel viewing and lighting condition.
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -82,17 +83,8 @@ pub fn conditions() -> Vec<Condition> {
 pub const EVAL_DISTANCE_MM: f32 = 400.0;
 
 pub fn scene_for(c: &Condition, px: u32) -> Scene {
-    let light = render::scene::dir_from(c.light_elevation_deg.to_radians(), c.light_azimuth_deg.to_radians());
-    let camera = Scene::camera(c.camera_polar_deg, c.camera_azimuth_deg, EVAL_DISTANCE_MM, 18.0, px);
-    Scene {
-        camera,
-        lights: vec![Light::Point {
-            position_mm: light * EVAL_DISTANCE_MM,
-            intensity: Vec3::splat(EVAL_DISTANCE_MM * EVAL_DISTANCE_MM),
-        }],
-        env: None,
-        env_samples: 0,
-    }
+    let light = Lighting::Point { elevation_deg: c.light_elevation_deg, azimuth_deg: c.light_azimuth_deg };
+    crate::renders::scene((c.camera_polar_deg, c.camera_azimuth_deg), light, px)
 }
 
 /// Per-model figures.
@@ -222,17 +214,8 @@ fn ndf_errors(m: &Material, which: ModelChoice, truth: &dyn SvBrdf, max_points: 
             t.normalize();
             let est = set.get(p);
             let obs = observed_set.get(p);
-            let (mut no, mut do_, mut nf, mut df) = (0.0, 0.0, 0.0, 0.0);
-            for c in 0..grid.len() {
-                let w = grid.cos_measure(c / grid.n_phi as usize) as f64;
-                let (a, b) = (est.values()[c] as f64, t.values()[c] as f64);
-                nf += w * (a - b) * (a - b);
-                df += w * b * b;
-                if obs.coverage().get(c) {
-                    no += w * (a - b) * (a - b);
-                    do_ += w * b * b;
-                }
-            }
+            let (no, do_) = est.l2_sums(&t, |c| obs.coverage().get(c))?;
+            let (nf, df) = est.l2_sums(&t, |_| true)?;
             Some((no, do_, nf, df))
         })
         .collect();
@@ -249,14 +232,7 @@ fn holdout(dir: &Path, rep: &mut Reporter) -> Result<BTreeMap<String, Holdout>> 
         serde_json::from_value(info.settings.clone()).context("capture.json lacks its quality settings")?;
     let mut settings = q.fit.clone();
     settings.holdout_every = Some(HOLDOUT_EVERY);
-    let inputs = fit::FitInputs {
-        geometry: info.geometry.clone(),
-        plan: info.plan.clone(),
-        calibration: info.calibration.clone(),
-        grid: info.grid,
-        e_per_dn: info.sensor.e_per_dn,
-        bit_depth: info.sensor.bit_depth,
-    };
+    let inputs = crate::fitjob::fit_inputs(&info);
     // Ingest everything, keep the store, fit without the held-out lights.
     let ctx = fit::FitContext::new(inputs);
     let mut ingest = fit::Ingest::new(&ctx);
@@ -316,12 +292,7 @@ pub fn evaluate(dir: &Path, opts: &EvalOptions, rep: &mut Reporter) -> Result<Ev
     let info = CaptureDir::read_info(dir)?;
     let mdir = dir.join("material");
     let m = Arc::new(material::read(&mdir).with_context(|| format!("{} has no fitted material", dir.display()))?);
-    let truth: Option<Arc<dyn SvBrdf>> = match &info.simulated {
-        Some(s) => {
-            Some(sim_material(s.material.as_deref().unwrap_or(&info.sample), s.material_dir.as_deref().map(Path::new))?)
-        }
-        None => None,
-    };
+    let truth: Option<Arc<dyn SvBrdf>> = ground_truth(&info)?;
     let conds = conditions();
     let mut ev = Evaluation {
         sample: info.sample.clone(),

@@ -180,3 +180,15 @@ pub fn replay(root: &std::path::Path, entries: &[store::ManifestEntry], job: &Fi
     }
     Ok(n)
 }
+
+/// What the fitter needs to know about a stored capture.
+pub fn fit_inputs(info: &store::CaptureInfo) -> fit::FitInputs {
+    fit::FitInputs {
+        geometry: info.geometry.clone(),
+        plan: info.plan.clone(),
+        calibration: info.calibration.clone(),
+        grid: info.grid,
+        e_per_dn: info.sensor.e_per_dn,
+        bit_depth: info.sensor.bit_depth,
+    }
+}

@@ -26,12 +26,7 @@ use anyhow::{Context, Result, anyhow, bail};
 use brdf::params::AnalyticModel;
 use glam::Vec2;
 use material::Material;
-
-fn srgb(x: f32) -> u8 {
-    let x = x.clamp(0.0, 1.0);
-    let s = if x <= 0.003_130_8 { 12.92 * x } else { 1.055 * x.powf(1.0 / 2.4) - 0.055 };
-    (s * 255.0).round() as u8
-}
+use render::output::srgb;
 
 fn linear8(x: f32) -> u8 {
     (x.clamp(0.0, 1.0) * 255.0).round() as u8

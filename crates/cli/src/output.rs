@@ -78,7 +78,7 @@ pub fn material_from(out: &FitOutcome, info: &CaptureInfo, q: &Quality) -> Mater
     }
 }
 
-/// Wait for the fitter, then write the material.
+/// Wait for the fitter, then write the material and its preview renders.
 pub async fn finish_fit(
     job: FitJob,
     info: &CaptureInfo,
@@ -91,7 +91,7 @@ pub async fn finish_fit(
     let t = Instant::now();
     let out = tokio::task::block_in_place(|| job.finish())?;
     rep.stage("fit", format!("{} points in {:.1} s after the last frame", out.maps.len(), out.timings.points_s));
-    let m = material_from(&out, info, q);
+    let m = std::sync::Arc::new(material_from(&out, info, q));
     let dir = root.join("material");
     tokio::task::block_in_place(|| material::write(&dir, &m)).with_context(|| format!("writing {}", dir.display()))?;
     report.time("fit_ingest_s", out.timings.ingest_s);
@@ -145,6 +145,13 @@ pub async fn finish_fit(
         "model_choice": out.selection.as_ref().map(|s| &s.summary),
     });
     rep.stage("fit", format!("material written to {}", dir.display()));
+    let t = Instant::now();
+    let files = tokio::task::block_in_place(|| write_renders(root, m, info, rep))?;
+    report.time("renders_s", t.elapsed().as_secs_f64());
+    rep.stage(
+        "render",
+        format!("{} files in {} ({:.1} s)", files.len(), root.join("renders").display(), t.elapsed().as_secs_f64()),
+    );
     Ok(dir)
 }
 
@@ -153,17 +160,13 @@ pub const PREVIEW_PX: u32 = 160;
 
 /// Write the capture's `renders/` from its material (ground truth beside
 /// it for simulated captures).
-pub fn write_renders(root: &Path, material_dir: &Path, info: &CaptureInfo, rep: &mut Reporter) -> Result<Vec<PathBuf>> {
-    let m = std::sync::Arc::new(
-        material::read(material_dir).with_context(|| format!("reading {}", material_dir.display()))?,
-    );
-    let truth = match &info.simulated {
-        Some(s) => Some(crate::capture::sim_material(
-            s.material.as_deref().unwrap_or(&info.sample),
-            s.material_dir.as_deref().map(Path::new),
-        )?),
-        None => None,
-    };
+fn write_renders(
+    root: &Path,
+    m: std::sync::Arc<Material>,
+    info: &CaptureInfo,
+    rep: &mut Reporter,
+) -> Result<Vec<PathBuf>> {
+    let truth = crate::capture::ground_truth(info)?;
     crate::renders::write_previews(&root.join("renders"), m, truth, PREVIEW_PX, rep)
 }
 
@@ -188,24 +191,13 @@ pub async fn refit(dir: &Path, q_override: Option<Quality>, rep: &mut Reporter) 
         Some(q) => q,
         None => serde_json::from_value(info.settings.clone()).context("capture.json lacks its quality settings")?,
     };
-    let inputs = fit::FitInputs {
-        geometry: info.geometry.clone(),
-        plan: info.plan.clone(),
-        calibration: info.calibration.clone(),
-        grid: info.grid,
-        e_per_dn: info.sensor.e_per_dn,
-        bit_depth: info.sensor.bit_depth,
-    };
+    let inputs = crate::fitjob::fit_inputs(&info);
     let job = FitJob::start(inputs, q.fit.clone(), stages(&q, &Overrides::default()));
     let t = Instant::now();
     let n = tokio::task::block_in_place(|| crate::fitjob::replay(dir, &entries, &job))?;
     rep.stage("fit", format!("{n} stored frames read in {:.1} s", t.elapsed().as_secs_f64()));
     let mut report = Report { sample: info.sample.clone(), quality: q.name.clone(), ..Report::default() };
     let m = finish_fit(job, &info, &q, dir, rep, &mut report).await?;
-    let t = Instant::now();
-    let files = tokio::task::block_in_place(|| write_renders(dir, &m, &info, rep))?;
-    report.time("renders_s", t.elapsed().as_secs_f64());
-    rep.stage("render", format!("{} files in {}", files.len(), dir.join("renders").display()));
     report.peak_memory_mb = crate::report::peak_memory_mb();
     report.material = Some(m.display().to_string());
     write_report(dir, &report)?;

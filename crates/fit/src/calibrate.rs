@@ -196,42 +196,36 @@ fn residuals<'a>(
 ) -> impl Iterator<Item = f64> + 'a {
     (0..nq * np).filter_map(move |k| {
         let (q, p) = (k / np, k % np);
-        let (lm, lc) = data[k];
-        lm.is_finite().then(|| lm as f64 - ls[q] - lf[p] - dm * lc as f64)
+        residual(data[k], dm, ls[q] + lf[p])
     })
+}
+
+/// `ln M - other - dm ln cos_emit` for a measured `(ln M, ln cos_emit)`;
+/// `None` where nothing was measured.
+fn residual((lm, lc): (f32, f32), dm: f64, other: f64) -> Option<f64> {
+    lm.is_finite().then(|| lm as f64 - other - dm * lc as f64)
+}
+
+/// Mean of the values; `None` for none.
+fn finite_mean(values: impl Iterator<Item = f64>) -> Option<f64> {
+    let (s, n) = values.fold((0.0, 0usize), |(s, n), v| (s + v, n + 1));
+    (n > 0).then(|| s / n as f64)
 }
 
 /// Alternating least squares for `ln M = ls[q] + lf[p] + dm ln cos_emit`
 /// with `mean lf = 0`.
 fn als(data: &[(f32, f32)], nq: usize, np: usize, ls: &mut [f64], lf: &mut [f64], dm: &mut f64) {
     for _ in 0..ALS_ITERATIONS {
+        let d = *dm;
         for p in 0..np {
-            let (mut s, mut n) = (0.0, 0usize);
-            for q in 0..nq {
-                let (lm, lc) = data[q * np + p];
-                if lm.is_finite() {
-                    s += lm as f64 - ls[q] - *dm * lc as f64;
-                    n += 1;
-                }
-            }
-            if n > 0 {
-                lf[p] = s / n as f64;
-            }
+            let r = |q: usize| residual(data[q * np + p], d, ls[q]);
+            lf[p] = finite_mean((0..nq).filter_map(r)).unwrap_or(lf[p]);
         }
         let mean_f = lf.iter().sum::<f64>() / np as f64;
         lf.iter_mut().for_each(|v| *v -= mean_f);
         for q in 0..nq {
-            let (mut s, mut n) = (0.0, 0usize);
-            for p in 0..np {
-                let (lm, lc) = data[q * np + p];
-                if lm.is_finite() {
-                    s += lm as f64 - lf[p] - *dm * lc as f64;
-                    n += 1;
-                }
-            }
-            if n > 0 {
-                ls[q] = s / n as f64;
-            }
+            let r = |p: usize| residual(data[q * np + p], d, lf[p]);
+            ls[q] = finite_mean((0..np).filter_map(r)).unwrap_or(ls[q]);
         }
         let (mut num, mut den) = (0.0, 0.0);
         for q in 0..nq {

@@ -48,7 +48,8 @@ pub fn auto_exposure(img: &Image) -> f32 {
     if v > 0.0 { 0.8 / v } else { 1.0 }
 }
 
-fn srgb(v: f32) -> u8 {
+/// Linear `[0, 1]` to an 8-bit sRGB code (IEC 61966-2-1 transfer curve).
+pub fn srgb(v: f32) -> u8 {
     let v = v.clamp(0.0, 1.0);
     let s = if v <= 0.003_130_8 { 12.92 * v } else { 1.055 * v.powf(1.0 / 2.4) - 0.055 };
     (s * 255.0 + 0.5) as u8

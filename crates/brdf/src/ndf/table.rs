@@ -386,6 +386,14 @@ impl NdfTable {
     /// the cells in `mask` (all cells when `None`). `None` if the reference
     /// has no energy there or the grids differ.
     pub fn rel_l2(&self, reference: &NdfTable, mask: Option<&Coverage>) -> Option<f32> {
+        let (num, den) = self.l2_sums(reference, |i| mask.is_none_or(|m| m.get(i)))?;
+        (den > 0.0).then(|| (num / den).sqrt() as f32)
+    }
+
+    /// The two sums behind [`NdfTable::rel_l2`] over the cells `include`
+    /// accepts, `(sum w (self - ref)^2, sum w ref^2)` in the cosine measure,
+    /// for pooling the error of many tables; `None` if the grids differ.
+    pub fn l2_sums(&self, reference: &NdfTable, include: impl Fn(usize) -> bool) -> Option<(f64, f64)> {
         if self.grid != reference.grid {
             return None;
         }
@@ -395,7 +403,7 @@ impl NdfTable {
             let w = self.grid.cos_measure(t) as f64;
             for p in 0..np {
                 let i = t * np + p;
-                if mask.is_some_and(|m| !m.get(i)) {
+                if !include(i) {
                     continue;
                 }
                 let (a, b) = (self.values[i] as f64, reference.values[i] as f64);
@@ -403,7 +411,7 @@ impl NdfTable {
                 den += w * b * b;
             }
         }
-        (den > 0.0).then(|| (num / den).sqrt() as f32)
+        Some((num, den))
     }
 }
 

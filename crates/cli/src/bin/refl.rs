@@ -104,17 +104,7 @@ enum Cmd {
     /// homogeneous material: its measured NDF as the reference table, the
     /// diffuse and specular albedo and Fresnel index fitted to its BRDF.
     /// `capture --sim-material DIR` then scans it.
-    ImportRgl {
-        file: std::path::PathBuf,
-        #[arg(long)]
-        out: std::path::PathBuf,
-        /// NDF table rings (the table is RINGS x 3*RINGS cells).
-        #[arg(long, default_value_t = 32)]
-        ndf_theta: u32,
-        /// Side of the (square) sample, mm.
-        #[arg(long, default_value_t = 100.0)]
-        width_mm: f32,
-    },
+    ImportRgl(ImportArgs),
     /// Export a fitted material to glTF 2.0 (anisotropic GGX through
     /// KHR_materials_anisotropy, with textures) for ordinary renderers.
     ExportGltf {
@@ -127,17 +117,7 @@ enum Cmd {
     /// Import a MERL BRDF database file (.binary) as a homogeneous
     /// material: the NDF from its retro-reflection slice, the diffuse and
     /// specular albedo and Fresnel index fitted to the whole BRDF.
-    ImportMerl {
-        file: std::path::PathBuf,
-        #[arg(long)]
-        out: std::path::PathBuf,
-        /// NDF table rings (the table is RINGS x 3*RINGS cells).
-        #[arg(long, default_value_t = 32)]
-        ndf_theta: u32,
-        /// Side of the (square) sample, mm.
-        #[arg(long, default_value_t = 100.0)]
-        width_mm: f32,
-    },
+    ImportMerl(ImportArgs),
     /// Print performance figures (see each benchmark's --help).
     Bench {
         #[command(subcommand)]
@@ -155,6 +135,20 @@ enum Cmd {
         #[arg(long, default_value_t = 1.0)]
         time_scale: f64,
     },
+}
+
+/// What `import-rgl` and `import-merl` take.
+#[derive(Debug, clap::Args)]
+struct ImportArgs {
+    file: std::path::PathBuf,
+    #[arg(long)]
+    out: std::path::PathBuf,
+    /// NDF table rings (the table is RINGS x 3*RINGS cells).
+    #[arg(long, default_value_t = 32)]
+    ndf_theta: u32,
+    /// Side of the (square) sample, mm.
+    #[arg(long, default_value_t = 100.0)]
+    width_mm: f32,
 }
 
 #[derive(Debug, Subcommand)]
@@ -244,13 +238,9 @@ enum BenchCmd {
 }
 
 /// `refl import-rgl` and `refl import-merl`.
-fn import(
-    rgl: bool,
-    file: &std::path::Path,
-    out: &std::path::Path,
-    ndf_theta: u32,
-    width_mm: f32,
-) -> anyhow::Result<()> {
+fn import(rgl: bool, a: &ImportArgs) -> anyhow::Result<()> {
+    let ImportArgs { file, out, ndf_theta, width_mm } = a;
+    let (ndf_theta, width_mm) = (*ndf_theta, *width_mm);
     if out.join("material.json").exists() {
         anyhow::bail!("{} already holds a material; choose another --out", out.display());
     }
@@ -375,8 +365,8 @@ fn main() -> ExitCode {
                 println!("{}", out.join("tradeoff.png").display());
                 Ok(())
             }
-            Cmd::ImportRgl { file, out, ndf_theta, width_mm } => import(true, &file, &out, ndf_theta, width_mm),
-            Cmd::ImportMerl { file, out, ndf_theta, width_mm } => import(false, &file, &out, ndf_theta, width_mm),
+            Cmd::ImportRgl(a) => import(true, &a),
+            Cmd::ImportMerl(a) => import(false, &a),
             Cmd::ExportGltf { dir, out } => {
                 let dir = if dir.join("material").is_dir() { dir.join("material") } else { dir };
                 let m = material::read(&dir).map_err(|e| anyhow::anyhow!("reading {}: {e}", dir.display()))?;
