@@ -6,14 +6,20 @@ set -euo pipefail
 
 need_pkgs=()
 have() { dpkg -s "$1" >/dev/null 2>&1; }
-# C toolchain pieces for -sys crates. (The V4L2 camera backend and its
-# QEMU test tier are not built yet; they will add libclang-dev and QEMU.)
-for p in build-essential pkg-config; do
+# C toolchain pieces for -sys crates; libclang for the bindgen step of the
+# `v4l` crate (the V4L2 camera backend).
+# The V4L2 test tier (scripts/vm-test.sh): QEMU, a static busybox for the
+# guest, cpio for its initramfs, kmod to order the kernel's modules, xz in
+# case they are compressed.
+for p in build-essential pkg-config libclang-dev qemu-system-x86 busybox-static cpio kmod xz-utils; do
   have "$p" || need_pkgs+=("$p")
 done
+# The guest's kernel is Debian's linux-image-amd64, downloaded (not
+# installed) by vm-test.sh: apt must know the package.
+kernel_known() { apt-cache depends linux-image-amd64 2>/dev/null | grep -q "Depends: linux-image-[0-9]"; }
 
-if [ "${#need_pkgs[@]}" -gt 0 ]; then
-  echo "setup: installing ${need_pkgs[*]}" >&2
+if [ "${#need_pkgs[@]}" -gt 0 ] || ! kernel_known; then
+  echo "setup: installing ${need_pkgs[*]:-nothing (refreshing apt's package lists)}" >&2
   SUDO=""
   if [ "$(id -u)" -ne 0 ]; then
     if command -v sudo >/dev/null 2>&1; then SUDO="sudo"; else
@@ -22,7 +28,9 @@ if [ "${#need_pkgs[@]}" -gt 0 ]; then
   fi
   export DEBIAN_FRONTEND=noninteractive
   $SUDO apt-get update -qq
-  $SUDO apt-get install -y -qq --no-install-recommends "${need_pkgs[@]}" >/dev/null
+  if [ "${#need_pkgs[@]}" -gt 0 ]; then
+    $SUDO apt-get install -y -qq --no-install-recommends "${need_pkgs[@]}" >/dev/null
+  fi
 fi
 
 if ! command -v cargo >/dev/null 2>&1; then

@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The whole test suite, from a fresh clone: system packages, the workspace's
 # tests (end-to-end runs of the binaries included), the firmware protocol's
-# no_std build, and the daemon's systemd unit.
+# no_std build, the V4L2 backend against the kernel's vivid driver in a QEMU
+# guest, and the daemon's systemd unit.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
@@ -9,6 +10,8 @@ export CARGO_TERM_COLOR=never
 # Proves firmware-protocol is no_std and allocation-free (see PROTOCOL.md).
 cargo build --quiet --manifest-path firmware-protocol/nostd-check/Cargo.toml
 cargo test --workspace --no-fail-fast
+# The V4L2 tests (ignored above: this kernel has no V4L2) in a QEMU guest.
+bash scripts/vm-test.sh
 # The shipped systemd unit, checked against the freshly built daemon.
 cargo build --quiet --bin refl
 if command -v systemd-analyze >/dev/null 2>&1; then

@@ -81,6 +81,9 @@ struct Args {
     /// List the simulated rig's built-in samples and exit.
     #[arg(long)]
     list_samples: bool,
+    /// List this machine's V4L2 cameras (name, path, formats, sizes) and exit.
+    #[arg(long)]
+    list_cameras: bool,
     /// Run in this process even when a capture daemon (`refl daemon`) is running.
     #[arg(long)]
     no_daemon: bool,
@@ -97,6 +100,9 @@ fn main() -> ExitCode {
             println!("{n:14} {d}");
         }
         return ExitCode::SUCCESS;
+    }
+    if args.list_cameras {
+        return list_cameras(args.json);
     }
     let mut rep = Reporter::auto(args.json);
     let rt = match tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build() {
@@ -169,4 +175,28 @@ fn main() -> ExitCode {
             ExitCode::from(code as u8)
         }
     }
+}
+
+#[cfg(target_os = "linux")]
+fn list_cameras(json: bool) -> ExitCode {
+    match rig::camera::discover::list_cameras() {
+        Ok(cams) => {
+            if json {
+                println!("{}", serde_json::json!({ "cameras": cams }));
+            } else {
+                print!("{}", rig::camera::discover::render_listing(&cams));
+            }
+            ExitCode::SUCCESS
+        }
+        Err(e) => {
+            eprintln!("error: {e}");
+            ExitCode::from(cli::exit::FAILED as u8)
+        }
+    }
+}
+
+#[cfg(not(target_os = "linux"))]
+fn list_cameras(_json: bool) -> ExitCode {
+    eprintln!("error: camera listing needs Linux (V4L2)");
+    ExitCode::from(cli::exit::FAILED as u8)
 }

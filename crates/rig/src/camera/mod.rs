@@ -5,7 +5,12 @@
 //! known to be lit, which is decided by timestamps, never by order:
 //! [`FrameFilter`] is that rule, shared by every backend.
 
+#[cfg(target_os = "linux")]
+pub mod discover;
 mod filter;
+pub mod pixel;
+#[cfg(target_os = "linux")]
+pub mod v4l2;
 
 use std::collections::BTreeMap;
 use std::future::Future;

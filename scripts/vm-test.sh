@@ -1,0 +1,135 @@
+#!/usr/bin/env bash
+# The V4L2 tests against a real kernel driver.
+#
+# This machine's kernel has no V4L2, so the tests run in a QEMU guest under
+# software emulation (TCG): Debian's stock kernel (unpacked from its .deb,
+# not installed), a busybox initramfs, and the kernel's `vivid` test driver,
+# which gives a real /dev/video0 with GREY, Y16, Bayer and YUYV formats,
+# error-flagged buffers and disconnects on demand. The guest runs the
+# `vivid` test binary of crates/rig (its tests are #[ignore]d on the host)
+# and prints its exit status; anything else, a guest that does not boot
+# included, fails this script.
+#
+# Usage: bash scripts/vm-test.sh [extra test-binary arguments, e.g. a filter]
+# Needs: qemu-system-x86, busybox-static, cpio, kmod (scripts/setup.sh).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+root="$PWD"
+vm="$root/target/vm"
+mkdir -p "$vm"
+t0=$(date +%s)
+
+for tool in qemu-system-x86_64 cpio depmod modprobe; do
+  command -v "$tool" >/dev/null 2>&1 || PATH="$PATH:/usr/sbin:/sbin"
+  command -v "$tool" >/dev/null 2>&1 || { echo "vm-test: $tool is missing; run scripts/setup.sh" >&2; exit 1; }
+done
+busybox=/bin/busybox
+if [ ! -x "$busybox" ] || ldd "$busybox" >/dev/null 2>&1; then
+  echo "vm-test: a static busybox is missing (Debian busybox-static); run scripts/setup.sh" >&2; exit 1
+fi
+
+# 1. Debian's current kernel package, unpacked once into target/vm.
+pkg=$(apt-cache depends linux-image-amd64 2>/dev/null | awk '/Depends: linux-image-[0-9]/{print $2; exit}')
+if [ -z "$pkg" ]; then
+  echo "vm-test: apt does not know linux-image-amd64; run 'apt-get update' (scripts/setup.sh does)" >&2
+  exit 1
+fi
+kroot="$vm/$pkg"
+if [ ! -d "$kroot/boot" ]; then
+  rm -rf "$kroot.tmp" && mkdir -p "$kroot.tmp"
+  (cd "$kroot.tmp" && apt-get download "$pkg" >/dev/null 2>&1) || {
+    echo "vm-test: could not download $pkg" >&2; exit 1; }
+  dpkg-deb -x "$kroot.tmp"/*.deb "$kroot.tmp/root"
+  mv "$kroot.tmp/root" "$kroot" && rm -rf "$kroot.tmp"
+fi
+kver=$(ls "$kroot/lib/modules")
+[ -f "$kroot/lib/modules/$kver/modules.dep" ] || depmod -b "$kroot" "$kver"
+kernel="$kroot/boot/vmlinuz-$kver"
+
+# 2. The test binary, built for this machine (the guest runs the same
+#    x86_64 code with this machine's shared libraries copied in).
+exe=$(cargo test -p rig --test vivid --no-run --message-format=json 2>/dev/null \
+  | grep -o '"executable":"[^"]*"' | tail -1 | cut -d'"' -f4)
+[ -x "$exe" ] || { echo "vm-test: building the vivid test binary failed:" >&2; cargo test -p rig --test vivid --no-run >&2; exit 1; }
+
+# 3. The initramfs: busybox, the test binary and its libraries, vivid and
+#    the modules it depends on (in load order), and /init.
+ird="$vm/initramfs"
+rm -rf "$ird" && mkdir -p "$ird"/{bin,dev,proc,sys,tmp,modules,tests}
+cp "$busybox" "$ird/bin/busybox"
+cp "$exe" "$ird/tests/vivid"
+for lib in $(ldd "$exe" | grep -o '/[^ ]*'); do
+  mkdir -p "$ird$(dirname "$lib")" && cp -L "$lib" "$ird$lib"
+done
+i=0
+modprobe -d "$kroot" -S "$kver" --show-depends vivid | awk '/^insmod/{print $2}' | while read -r ko; do
+  i=$((i + 1))
+  name=$(basename "$ko")
+  case "$ko" in
+    *.xz) xz -dc "$ko" >"$ird/modules/$(printf %02d $i)-${name%.xz}" ;;
+    *.zst) zstd -dqc "$ko" >"$ird/modules/$(printf %02d $i)-${name%.zst}" ;;
+    *) cp "$ko" "$ird/modules/$(printf %02d $i)-$name" ;;
+  esac
+done
+ls "$ird"/modules/*vivid.ko >/dev/null 2>&1 || { echo "vm-test: vivid.ko not found in $pkg" >&2; exit 1; }
+# One capture node, one webcam input: the camera the tests drive.
+vivid_opts="n_devs=1 node_types=0x1 num_inputs=1 input_types=0x0"
+cat >"$ird/init" <<EOF
+#!/bin/busybox sh
+/bin/busybox --install -s /bin
+export PATH=/bin
+mount -t proc proc /proc
+mount -t sysfs sys /sys
+mount -t devtmpfs dev /dev
+mount -t tmpfs tmp /tmp
+for m in /modules/*.ko; do
+  case "\$m" in *vivid.ko) insmod "\$m" $vivid_opts ;; *) insmod "\$m" ;; esac || echo "vm: insmod \$m failed"
+done
+echo "vm: booted \$(uname -r); \$(ls /dev/video* 2>/dev/null | tr '\n' ' ')"
+export HOME=/tmp RUST_BACKTRACE=1 REFL_VIVID_REPLUG=/bin/vivid-replug
+/tests/vivid --ignored --test-threads=1 --nocapture $*
+echo "vm: vivid tests exit=\$?"
+poweroff -f
+EOF
+cat >"$ird/bin/vivid-replug" <<EOF
+#!/bin/sh
+# Unplug and plug the vivid camera again (after its Disconnect control).
+rmmod vivid || exit 1
+insmod /modules/*vivid.ko $vivid_opts
+EOF
+chmod +x "$ird/init" "$ird/bin/vivid-replug"
+(cd "$ird" && find . | cpio -o -H newc --quiet | gzip -1) >"$vm/initramfs.gz"
+t1=$(date +%s)
+
+# 4. Boot it. No KVM here: TCG. The guest powers off when the tests end.
+log="$vm/console.log"
+echo "vm-test: booting $pkg under QEMU (TCG) with vivid; console in $log" >&2
+set +e
+timeout 900 qemu-system-x86_64 -accel tcg -cpu max -m 1024 -smp 1 -nographic -no-reboot -nic none \
+  -kernel "$kernel" -initrd "$vm/initramfs.gz" \
+  -append "console=ttyS0 panic=-1 quiet loglevel=4 rdinit=/init" >"$log" 2>&1
+qemu_rc=$?
+set -e
+t2=$(date +%s)
+grep -aE "vm:|^(test |running|test result|failures|----|thread|vivid|applied)" "$log" | sed 's/\r$//' >&2 || true
+status=$(sed -n 's/.*vm: vivid tests exit=\([0-9]*\).*/\1/p' "$log" | tr -d '\r' | tail -1)
+echo "vm-test: prepared in $((t1 - t0)) s, guest ran $((t2 - t1)) s (qemu exit $qemu_rc)" >&2
+if ! grep -aq "vm: booted" "$log"; then
+  echo "vm-test: FAILED: the guest did not boot; see $log" >&2
+  tail -30 "$log" >&2
+  exit 1
+fi
+if [ -z "$status" ]; then
+  echo "vm-test: FAILED: the tests did not finish in the guest; see $log" >&2
+  tail -30 "$log" >&2
+  exit 1
+fi
+if [ "$status" != 0 ]; then
+  echo "vm-test: FAILED: the vivid tests failed in the guest (exit $status)" >&2
+  exit 1
+fi
+if ! grep -aq "test result: ok" "$log" || grep -aq "test result: ok. 0 passed" "$log"; then
+  echo "vm-test: FAILED: no vivid test ran" >&2
+  exit 1
+fi
+echo "vm-test: V4L2 tests passed against vivid" >&2
