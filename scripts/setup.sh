@@ -19,7 +19,7 @@ done
 kernel_known() { apt-cache depends linux-image-amd64 2>/dev/null | grep -q "Depends: linux-image-[0-9]"; }
 
 if [ "${#need_pkgs[@]}" -gt 0 ] || ! kernel_known; then
-  echo "setup: installing ${need_pkgs[*]:-nothing (refreshing apt's package lists)}" >&2
+  echo "setup: installing ${need_pkgs[*]:-nothing, refreshing the package lists}" >&2
   SUDO=""
   if [ "$(id -u)" -ne 0 ]; then
     if command -v sudo >/dev/null 2>&1; then SUDO="sudo"; else

@@ -6,9 +6,11 @@
 # not installed), a busybox initramfs, and the kernel's `vivid` test driver,
 # which gives a real /dev/video0 with GREY, Y16, Bayer and YUYV formats,
 # error-flagged buffers and disconnects on demand. The guest runs the
-# `vivid` test binary of crates/rig (its tests are #[ignore]d on the host)
-# and prints its exit status; anything else, a guest that does not boot
-# included, fails this script.
+# `vivid` test binary of crates/rig (its tests are #[ignore]d on the host),
+# then the hardware capture path end to end (scripts/vm/guest-capture.sh:
+# `capture` with a hardware rig file, the emulated MCU on a pseudo-terminal,
+# vivid as the camera), and prints both exit statuses; anything else, a
+# guest that does not boot included, fails this script.
 #
 # Usage: bash scripts/vm-test.sh [extra test-binary arguments, e.g. a filter]
 # Needs: qemu-system-x86, busybox-static, cpio, kmod (scripts/setup.sh).
@@ -51,14 +53,29 @@ kernel="$kroot/boot/vmlinuz-$kver"
 exe=$(cargo test -p rig --test vivid --no-run --message-format=json 2>/dev/null \
   | grep -o '"executable":"[^"]*"' | tail -1 | cut -d'"' -f4)
 [ -x "$exe" ] || { echo "vm-test: building the vivid test binary failed:" >&2; cargo test -p rig --test vivid --no-run >&2; exit 1; }
+cargo build --quiet -p reflectometer-cli --bin capture --bin refl
+bins="$root/target/debug/capture $root/target/debug/refl"
 
-# 3. The initramfs: busybox, the test binary and its libraries, vivid and
-#    the modules it depends on (in load order), and /init.
+# The guest capture's white calibration, made on the simulated twin of its
+# hardware rig file (vivid's picture does not respond to the LEDs).
+rigfile="$root/scripts/vm/vivid-rig.toml"
+rm -rf "$vm/vivid-calib"
+sed 's/^kind = "hardware"/kind = "sim"/' "$rigfile" >"$vm/vivid-sim.toml"
+"$root/target/debug/capture" --rig "$vm/vivid-sim.toml" --calib-dir "$vm/vivid-calib" --calibrate white \
+  >"$vm/vivid-calib.log" 2>&1 || { echo "vm-test: the simulated calibration failed:" >&2; tail -20 "$vm/vivid-calib.log" >&2; exit 1; }
+
+# 3. The initramfs: busybox, the test binary, capture and refl and their
+#    libraries, the rig file and calibration, vivid and the modules it
+#    depends on (in load order), and /init.
 ird="$vm/initramfs"
-rm -rf "$ird" && mkdir -p "$ird"/{bin,dev,proc,sys,tmp,modules,tests}
+rm -rf "$ird" && mkdir -p "$ird"/{bin,dev,proc,sys,tmp,modules,tests,etc}
 cp "$busybox" "$ird/bin/busybox"
 cp "$exe" "$ird/tests/vivid"
-for lib in $(ldd "$exe" | grep -o '/[^ ]*'); do
+cp $bins "$ird/bin/"
+cp "$root/scripts/vm/guest-capture.sh" "$ird/tests/capture.sh"
+cp "$rigfile" "$ird/etc/vivid-rig.toml"
+cp -r "$vm/vivid-calib" "$ird/etc/vivid-calib"
+for lib in $(ldd "$exe" $bins | grep -v ':$' | grep -o '/[^ ]*' | sort -u); do
   mkdir -p "$ird$(dirname "$lib")" && cp -L "$lib" "$ird$lib"
 done
 i=0
@@ -81,6 +98,7 @@ export PATH=/bin
 mount -t proc proc /proc
 mount -t sysfs sys /sys
 mount -t devtmpfs dev /dev
+mkdir -p /dev/pts && mount -t devpts devpts /dev/pts
 mount -t tmpfs tmp /tmp
 for m in /modules/*.ko; do
   case "\$m" in *vivid.ko) insmod "\$m" $vivid_opts ;; *) insmod "\$m" ;; esac || echo "vm: insmod \$m failed"
@@ -89,6 +107,7 @@ echo "vm: booted \$(uname -r); \$(ls /dev/video* 2>/dev/null | tr '\n' ' ')"
 export HOME=/tmp RUST_BACKTRACE=1 REFL_VIVID_REPLUG=/bin/vivid-replug
 /tests/vivid --ignored --test-threads=1 --nocapture $*
 echo "vm: vivid tests exit=\$?"
+sh /tests/capture.sh
 poweroff -f
 EOF
 cat >"$ird/bin/vivid-replug" <<EOF
@@ -105,13 +124,13 @@ t1=$(date +%s)
 log="$vm/console.log"
 echo "vm-test: booting $pkg under QEMU (TCG) with vivid; console in $log" >&2
 set +e
-timeout 900 qemu-system-x86_64 -accel tcg -cpu max -m 1024 -smp 1 -nographic -no-reboot -nic none \
+timeout 900 qemu-system-x86_64 -accel tcg -cpu max -m 2048 -smp 1 -nographic -no-reboot -nic none \
   -kernel "$kernel" -initrd "$vm/initramfs.gz" \
   -append "console=ttyS0 panic=-1 quiet loglevel=4 rdinit=/init" >"$log" 2>&1
 qemu_rc=$?
 set -e
 t2=$(date +%s)
-grep -aE "vm:|^(test |running|test result|failures|----|thread|vivid|applied)" "$log" | sed 's/\r$//' >&2 || true
+grep -aE "vm:|^(test |running|test result|failures|----|thread|vivid|applied)|ERROR|WARN" "$log" | sed 's/\r$//' >&2 || true
 status=$(sed -n 's/.*vm: vivid tests exit=\([0-9]*\).*/\1/p' "$log" | tr -d '\r' | tail -1)
 echo "vm-test: prepared in $((t1 - t0)) s, guest ran $((t2 - t1)) s (qemu exit $qemu_rc)" >&2
 if ! grep -aq "vm: booted" "$log"; then
@@ -133,3 +152,10 @@ if ! grep -aq "test result: ok" "$log" || grep -aq "test result: ok. 0 passed" "
   exit 1
 fi
 echo "vm-test: V4L2 tests passed against vivid" >&2
+capture_status=$(sed -n 's/.*vm: capture exit=\([0-9]*\).*/\1/p' "$log" | tr -d '\r' | tail -1)
+if [ "$capture_status" != 0 ]; then
+  echo "vm-test: FAILED: the hardware capture in the guest failed (exit ${capture_status:-none}); see $log" >&2
+  tail -40 "$log" >&2
+  exit 1
+fi
+echo "vm-test: hardware capture passed with vivid and the emulated MCU" >&2

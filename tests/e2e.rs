@@ -400,3 +400,41 @@ fn eval_ranks_the_models_as_the_physics_says() {
     let h = ward["holdout"]["partial"]["frame_rel_rmse"].as_f64().unwrap();
     assert!(h.is_finite() && h > 0.0 && h < 0.5, "hold-out {h}");
 }
+
+#[test]
+fn cameras_are_listed_and_a_hardware_rig_without_its_devices_is_explained() {
+    let lab = Lab::new();
+    let o = lab.cmd(CAPTURE).args(["--list-cameras", "--json"]).output().unwrap();
+    assert_ok(&o, "capture --list-cameras --json");
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let cams = v["cameras"].as_array().expect("a cameras array");
+    let o = lab.cmd(CAPTURE).arg("--list-cameras").output().unwrap();
+    assert_ok(&o, "capture --list-cameras");
+    if cams.is_empty() {
+        assert!(String::from_utf8_lossy(&o.stdout).contains("no V4L2 cameras"), "{o:?}");
+    }
+
+    let rig = lab.path("rig.toml");
+    std::fs::write(
+        &rig,
+        format!(
+            "name = \"bench\"\nkind = \"hardware\"\nwhite_reference_albedo = 0.95\nled_current_ma = 200\n\
+             [serial]\nby = \"path\"\npath = \"{}\"\n[camera]\ndevice = \"{}\"\ne_per_dn = 1.0\n",
+            s(&lab.path("no-mcu")),
+            s(&lab.path("no-video"))
+        ),
+    )
+    .unwrap();
+    // No calibration yet: the operator is told which scans to run.
+    let o =
+        lab.cmd(CAPTURE).args(["--rig", s(&rig), "--sample", "cloth", "--out", s(&lab.path("c"))]).output().unwrap();
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("--calibrate dark"), "{}", stderr(&o));
+    assert!(!lab.path("c").exists());
+    // The scan itself names the device that is missing.
+    let o = lab.cmd(CAPTURE).args(["--rig", s(&rig), "--calibrate", "dark"]).output().unwrap();
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("no-video"), "{}", stderr(&o));
+    let saved = std::fs::read_dir(lab.path("data/calibration/bench")).map_or(0, |d| d.count());
+    assert_eq!(saved, 0, "a failed scan saves no calibration");
+}

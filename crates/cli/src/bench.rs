@@ -283,7 +283,7 @@ pub async fn realtime(sample: &str, steps: u32, led_stride: u8, fps: f32) -> Res
     let calib = dir.join("calibration");
     let store = crate::calib::CalibrationStore::new(Some(&calib), &rf.name);
     let mut quiet = Reporter::new(Mode::Silent);
-    crate::capture::calibrate_sim(&rf, &g, &store, &mut quiet, true).await?;
+    crate::capture::calibrate(&rf, &g, &store, &mut quiet, true).await?;
     rf.sim.realtime = true;
     rf.sim.fps = fps;
     let rig_path = dir.join("rig.toml");

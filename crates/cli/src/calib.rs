@@ -76,7 +76,10 @@ pub async fn dark<K: Connector, C: Camera>(
     rep: &mut Reporter,
 ) -> Result<Calibration> {
     rep.stage("calibrate", "dark scan: all LEDs off");
-    camera.configure(settings).await?;
+    let applied = camera.configure(settings).await?;
+    for w in &applied.warnings {
+        rep.warn(format!("camera: {w}"));
+    }
     rig.all_off().await?;
     let off_at = clock::to_mono(tokio::time::Instant::now());
     let mut frames = Vec::new();
@@ -84,9 +87,12 @@ pub async fn dark<K: Connector, C: Camera>(
         frames.push(camera.frame_after(off_at, Duration::from_secs(5)).await?);
         rig.keepalive().await?;
     }
-    let Some((black, noise)) = fit::calibrate::dark_statistics(&frames) else { bail!("the dark scan gave no pixels") };
-    rep.stage("calibrate", format!("black level {black:.1?} DN, read noise {noise:.2?} DN"));
-    Ok(Calibration { id: paths::utc_stamp(), black_level: black, read_noise_dn: noise, ..base })
+    let Some(stats) = fit::calibrate::dark_statistics(&frames) else { bail!("the dark scan gave no pixels") };
+    rep.stage("calibrate", format!("black level {:.1?} DN, read noise {:.2?} DN", stats.black_level, stats.read_noise));
+    if let Some(why) = stats.light_leak() {
+        rep.warn(why);
+    }
+    Ok(Calibration { id: paths::utc_stamp(), black_level: stats.black_level, read_noise_dn: stats.read_noise, ..base })
 }
 
 /// White scan: the white reference under every LED at every step of a
@@ -103,7 +109,10 @@ pub async fn white<K: Connector, C: Camera>(
     rep: &mut Reporter,
 ) -> Result<Calibration> {
     rep.stage("calibrate", format!("white scan of a reference of albedo {albedo}"));
-    camera.configure(settings).await?;
+    let applied = camera.configure(settings).await?;
+    for w in &applied.warnings {
+        rep.warn(format!("camera: {w}"));
+    }
     let plan = CapturePlan {
         steps: 48,
         first_mm: geometry.gantry.travel_min_mm,

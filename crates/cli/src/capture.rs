@@ -161,23 +161,26 @@ async fn calibration_for(
         );
     }
     rep.stage("calibrate", "no calibration of the simulated rig yet: running the dark and white scans first");
-    let c = calibrate_sim(rf, geometry, store, rep, true).await?;
+    let c = calibrate(rf, geometry, store, rep, true).await?;
     let path = store.dir().join(format!("{}.json", c.id));
     Ok((c, path.display().to_string()))
 }
 
-/// Run the dark scan and (if `white`) the white scan on the simulated rig
-/// and store the result.
-pub async fn calibrate_sim(
+/// Run the dark scan and (if `white`) the white scan and store the result.
+/// On the simulated rig the white reference is put in place for the scan;
+/// on hardware the operator has placed it (or the lens cap, for `dark`).
+pub async fn calibrate(
     rf: &RigFile,
     geometry: &RigGeometry,
     store: &CalibrationStore,
     rep: &mut Reporter,
     white: bool,
 ) -> Result<Calibration> {
-    let reference = sim_material("white", None)?;
-    let mut s = session::open_sim(rf, geometry, reference, &FaultSpec::none()).await?;
-    let cs = camera_settings(geometry, 20_000, 1.0, rf.sim.fps);
+    let mut s = match rf.kind {
+        RigKind::Sim => session::open_sim(rf, geometry, sim_material("white", None)?, &FaultSpec::none()).await?,
+        RigKind::Hardware => session::open_hardware(rf, geometry).await?,
+    };
+    let cs = camera_settings(geometry, 20_000, 1.0, s.fps);
     let base = match store.newest()? {
         Some((_, c)) if c.led_scale.len() == geometry.bar.n_leds as usize => c,
         _ => Calibration::nominal(geometry.bar.n_leds, 1.0, 0.0),
@@ -194,8 +197,7 @@ pub async fn calibrate_sim(
         anyhow::Ok(c)
     }
     .await;
-    s.rig.shutdown().await;
-    let _ = s.mcu.stop().await;
+    s.close().await;
     let c = result?;
     let path = store.save(&c)?;
     rep.stage("calibrate", format!("saved {}", path.display()));
@@ -244,7 +246,7 @@ impl<C: Camera> Shooter<'_, C> {
                     ));
                 }
                 Err(CameraError::Gone(why)) if gone_since.elapsed() < CAMERA_RETURN => {
-                    self.rep.warn(format!("the camera disappeared ({why}); waiting for it to come back"));
+                    self.rep.warn(format!("the camera went away ({why}); waiting for it to come back"));
                     tokio::time::sleep(Duration::from_millis(200)).await;
                 }
                 Err(e) => return Err(e.into()),
@@ -409,29 +411,48 @@ pub async fn run(req: CaptureRequest, rep: &mut Reporter, cancel: watch::Receive
     } else {
         calibration_for(&rf, &geometry, &cal_store, rep).await?
     };
-    if rf.kind == RigKind::Hardware {
-        bail!(
-            "the hardware capture path needs the V4L2 camera backend, which this build does not include yet; \
-             use the simulated rig (no --rig, or a rig file with kind = \"sim\")"
-        );
-    }
     let sample = info.sample.clone();
-    let Some(material) = ground_truth(&info)? else {
-        bail!("this capture was made on hardware; resume it with the same hardware rig")
-    };
     let faults = if resume {
         FaultSpec::parse(info.simulated.as_ref().map_or("", |s| s.faults.as_str())).unwrap_or(faults)
     } else {
         faults
     };
     rep.stage("rig", format!("{} ({rig_source}); sample '{sample}', quality {}", rf.name, q.name));
-    let mut s = session::open_sim(&rf, &geometry, material, &faults).await?;
+    let mut s = match (rf.kind, ground_truth(&info)?) {
+        (RigKind::Sim, Some(material)) => session::open_sim(&rf, &geometry, material, &faults).await?,
+        (RigKind::Hardware, None) => session::open_hardware(&rf, &geometry).await?,
+        (RigKind::Sim, None) => {
+            bail!("this capture was made on hardware; resume it with the same hardware rig (--rig)")
+        }
+        (RigKind::Hardware, Some(_)) => {
+            bail!("this capture was made on the simulated rig; resume it without a hardware --rig")
+        }
+    };
     let mut info = info;
     info.calibration = calibration.clone();
     info.calibration_source = Some(cal_source.clone());
-    info.sensor = SensorInfo { bit_depth: 12, e_per_dn: s.e_per_dn };
-    let cs = camera_settings(&geometry, info.plan.exposures_us[0], info.plan.gain, rf.sim.fps);
-    let applied = s.camera.configure(&cs).await?;
+    let cs = camera_settings(&geometry, info.plan.exposures_us[0], info.plan.gain, s.fps);
+    let applied = match s.camera.configure(&cs).await {
+        Ok(a) => a,
+        Err(e) => {
+            s.close().await;
+            return Err(e).context("cannot configure the camera");
+        }
+    };
+    for w in &applied.warnings {
+        rep.warn(format!("camera: {w}"));
+    }
+    if resume && info.sensor.bit_depth != applied.bit_depth {
+        s.close().await;
+        bail!(
+            "the capture's frames are {}-bit but the camera now delivers {}-bit ({}); resume with the format it was \
+             made with",
+            info.sensor.bit_depth,
+            applied.bit_depth,
+            applied.format
+        );
+    }
+    info.sensor = SensorInfo { bit_depth: applied.bit_depth, e_per_dn: s.e_per_dn };
     let mut cd = match root {
         Some(cd) => cd,
         None => {
@@ -450,7 +471,7 @@ pub async fn run(req: CaptureRequest, rep: &mut Reporter, cancel: watch::Receive
         calibration: calibration.clone(),
         grid: info.grid,
         e_per_dn: s.e_per_dn,
-        bit_depth: 12,
+        bit_depth: info.sensor.bit_depth,
     };
     let job =
         (!req.no_fit).then(|| FitJob::start(fit_inputs, q.fit.clone(), crate::output::stages(&q, &req.overrides)));
@@ -466,13 +487,13 @@ pub async fn run(req: CaptureRequest, rep: &mut Reporter, cancel: watch::Receive
         quality: q.name.clone(),
         rig: rf.name.clone(),
         calibration: cal_source,
-        simulated: true,
+        simulated: rf.kind == RigKind::Sim,
         ..Report::default()
     };
     let capture_started = Instant::now();
     let outcome =
         capture_frames(&mut s.rig, &mut s.camera, &mut cd, job.as_ref(), &done, rep, req.stop_after, cancel).await;
-    s.rig.shutdown().await;
+    s.close().await;
     report.time("capture_s", capture_started.elapsed().as_secs_f64());
     let link = s.rig.link_stats();
     report.link = serde_json::json!({
@@ -483,7 +504,6 @@ pub async fn run(req: CaptureRequest, rep: &mut Reporter, cancel: watch::Receive
         "mean_rtt_us": link.mean_rtt().map(|d| d.as_secs_f64() * 1e6),
     });
     report.recoveries = s.rig.recoveries().iter().map(|r| format!("{r:?}")).collect();
-    let _ = s.mcu.stop().await;
     let stats = match outcome {
         Ok(stats) => stats,
         Err(e) => {

@@ -41,6 +41,21 @@ pub struct CameraSection {
     pub e_per_dn: f32,
     #[serde(default = "default_fps")]
     pub fps: f32,
+    /// Pixel format by its code (`"Y16"`, `"BA81"`); by default the deepest
+    /// raw format the camera offers (`capture --list-cameras` shows them).
+    #[serde(default)]
+    pub format: Option<String>,
+    /// The gain control's value that means unit gain; by default the
+    /// control's default value.
+    #[serde(default)]
+    pub gain_unity: Option<i64>,
+    /// Driver buffers mapped for streaming.
+    #[serde(default = "default_buffers")]
+    pub buffers: u32,
+}
+
+fn default_buffers() -> u32 {
+    4
 }
 
 fn default_fps() -> f32 {

@@ -2,12 +2,13 @@
 //! pseudo-terminal, driven by the real serial driver, and the simulated
 //! camera) or the hardware named in the rig file.
 
-use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Duration;
 
-use anyhow::{Context, Result};
+use anyhow::{Context, Result, anyhow};
+use frame::{Frame, MonoNs};
 use material::SvBrdf;
+use rig::camera::{AppliedSettings, Camera, CameraError, CameraSettings};
 use rig::mcu::{PortLocator, Rig, RigSettings, SerialConnector};
 use setup::RigGeometry;
 use sim::camera::{CameraTiming, LedTruth, SensorModel, SimCamera, SimCameraConfig};
@@ -16,18 +17,79 @@ use sim::{FaultSpec, McuConfig, SimMcu, World};
 use crate::paths;
 use crate::rigfile::RigFile;
 
-/// The simulated rig, running in this process.
-pub struct SimRig {
-    pub mcu: SimMcu,
+/// An open rig: the serial driver and the camera, and on the simulated rig
+/// the emulated microcontroller behind the pseudo-terminal.
+pub struct Session {
     pub rig: Rig<SerialConnector>,
-    pub camera: SimCamera,
+    pub camera: RigCamera,
+    /// Electrons per DN at unit gain (the sensor model's, or the rig file's).
     pub e_per_dn: f32,
-    pub link: PathBuf,
+    /// Frames per second asked of the camera.
+    pub fps: f32,
+    mcu: Option<SimMcu>,
 }
 
-impl std::fmt::Debug for SimRig {
+impl std::fmt::Debug for Session {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("SimRig").field("link", &self.link).finish()
+        f.debug_struct("Session").field("camera", &self.camera).finish()
+    }
+}
+
+impl Session {
+    /// Switch the rig off (LEDs off, motors released) and stop the emulated
+    /// microcontroller if there is one.
+    pub async fn close(&mut self) {
+        self.rig.shutdown().await;
+        if let Some(mcu) = self.mcu.take() {
+            let _ = mcu.stop().await;
+        }
+    }
+}
+
+/// The rig's camera: the simulated one or a V4L2 device.
+pub enum RigCamera {
+    Sim(SimCamera),
+    #[cfg(target_os = "linux")]
+    V4l2(rig::camera::v4l2::V4l2Camera),
+}
+
+impl std::fmt::Debug for RigCamera {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.describe())
+    }
+}
+
+impl Camera for RigCamera {
+    fn describe(&self) -> String {
+        match self {
+            RigCamera::Sim(c) => c.describe(),
+            #[cfg(target_os = "linux")]
+            RigCamera::V4l2(c) => c.describe(),
+        }
+    }
+
+    async fn configure(&mut self, settings: &CameraSettings) -> Result<AppliedSettings, CameraError> {
+        match self {
+            RigCamera::Sim(c) => c.configure(settings).await,
+            #[cfg(target_os = "linux")]
+            RigCamera::V4l2(c) => c.configure(settings).await,
+        }
+    }
+
+    async fn set_exposure(&mut self, exposure_us: u32, gain: f32) -> Result<(), CameraError> {
+        match self {
+            RigCamera::Sim(c) => c.set_exposure(exposure_us, gain).await,
+            #[cfg(target_os = "linux")]
+            RigCamera::V4l2(c) => c.set_exposure(exposure_us, gain).await,
+        }
+    }
+
+    async fn frame_after(&mut self, after: MonoNs, timeout: Duration) -> Result<Frame, CameraError> {
+        match self {
+            RigCamera::Sim(c) => c.frame_after(after, timeout).await,
+            #[cfg(target_os = "linux")]
+            RigCamera::V4l2(c) => c.frame_after(after, timeout).await,
+        }
     }
 }
 
@@ -69,7 +131,7 @@ pub async fn open_sim(
     geometry: &RigGeometry,
     material: Arc<dyn SvBrdf>,
     faults: &FaultSpec,
-) -> Result<SimRig> {
+) -> Result<Session> {
     let scale = if rf.sim.realtime { 1.0 } else { rf.sim.time_scale.max(0.0) as f64 };
     let dir = paths::runtime_dir();
     std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
@@ -110,5 +172,38 @@ pub async fn open_sim(
         baud: rf.serial.as_ref().map_or(1_000_000, |s| s.baud),
     };
     let rig = Rig::open(connector, settings).await.context("cannot talk to the simulated rig")?;
-    Ok(SimRig { mcu, rig, camera, e_per_dn, link })
+    Ok(Session { rig, camera: RigCamera::Sim(camera), e_per_dn, fps: rf.sim.fps, mcu: Some(mcu) })
+}
+
+/// Open the hardware the rig file names: the microcontroller on its serial
+/// port and the V4L2 camera.
+pub async fn open_hardware(rf: &RigFile, geometry: &RigGeometry) -> Result<Session> {
+    let (Some(serial), Some(cam)) = (&rf.serial, &rf.camera) else {
+        return Err(anyhow!("rig '{}' needs [serial] and [camera] sections (see RIGFILE.md)", rf.name));
+    };
+    let camera = open_v4l2(cam).await?;
+    let connector = SerialConnector { locator: serial.locator.clone(), baud: serial.baud };
+    let settings = rig_settings(geometry, 1.0, rf.led_current_ma);
+    let rig = Rig::open(connector, settings)
+        .await
+        .with_context(|| format!("cannot talk to rig '{}' on its serial port", rf.name))?;
+    Ok(Session { rig, camera, e_per_dn: cam.e_per_dn, fps: cam.fps, mcu: None })
+}
+
+#[cfg(target_os = "linux")]
+async fn open_v4l2(cam: &crate::rigfile::CameraSection) -> Result<RigCamera> {
+    use rig::camera::v4l2::{V4l2Camera, V4l2Options};
+    let opts = V4l2Options {
+        path: cam.device.clone(),
+        format: cam.format.clone(),
+        gain_unity: cam.gain_unity,
+        buffers: cam.buffers.clamp(2, 32),
+    };
+    let camera = V4l2Camera::open(opts).with_context(|| format!("cannot open the camera {}", cam.device.display()))?;
+    Ok(RigCamera::V4l2(camera))
+}
+
+#[cfg(not(target_os = "linux"))]
+async fn open_v4l2(_: &crate::rigfile::CameraSection) -> Result<RigCamera> {
+    Err(anyhow!("hardware cameras are V4L2 devices and need Linux"))
 }

@@ -149,41 +149,89 @@ impl<'a> WhiteAccumulator<'a> {
     }
 }
 
-/// Black level and read noise per Bayer colour from dark frames.
-pub fn dark_statistics(frames: &[Frame]) -> Option<([f32; 3], [f32; 3])> {
+/// What a stack of dark frames says about the sensor, per Bayer colour
+/// (mono sensors fill all three slots with the one value).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DarkStatistics {
+    /// Mean dark level, DN.
+    pub black_level: [f32; 3],
+    /// Temporal noise, DN: from differences of consecutive frames (each
+    /// difference has twice a frame's variance), so that a fixed pattern
+    /// does not count as noise. With a single frame, the spatial spread.
+    pub read_noise: [f32; 3],
+    /// Spread across pixels of the per-pixel mean, DN. Far above the read
+    /// noise, it means the frames are not dark: light reaches the sensor
+    /// (no lens cap, a room light) or the camera sends a picture.
+    pub spatial_sd: [f32; 3],
+}
+
+impl DarkStatistics {
+    /// Why these frames should not be trusted as dark frames, if so: a
+    /// per-pixel mean that varies by more than 5 read-noise sigmas (and
+    /// more than 2 DN, for noiseless test sensors).
+    pub fn light_leak(&self) -> Option<String> {
+        let c = 1;
+        let (spread, noise) = (self.spatial_sd[c], self.read_noise[c]);
+        (spread > 5.0 * noise && spread > 2.0).then(|| {
+            format!(
+                "the dark frames are not uniform (pixels differ by {spread:.1} DN, read noise {noise:.1} DN): \
+                 light reaches the sensor; put the lens cap on and switch off the room light"
+            )
+        })
+    }
+}
+
+/// Black level, temporal read noise and fixed-pattern spread per Bayer
+/// colour from dark frames of one size (`None` without pixels).
+pub fn dark_statistics(frames: &[Frame]) -> Option<DarkStatistics> {
+    let first = frames.first()?;
+    let (w, h) = (first.width, first.height);
+    let frames: Vec<&Frame> = frames.iter().filter(|f| f.width == w && f.height == h).collect();
+    let channel = |x: u32, y: u32| match first.layout {
+        frame::Layout::Bayer { pattern } => pattern.channel(x, y),
+        _ => 1,
+    };
+    let nf = frames.len() as f64;
     let mut sum = [0.0f64; 3];
     let mut sum2 = [0.0f64; 3];
     let mut n = [0u64; 3];
-    for f in frames {
-        for y in 0..f.height {
-            for x in 0..f.width {
-                let c = match f.layout {
-                    frame::Layout::Bayer { pattern } => pattern.channel(x, y),
-                    _ => 1,
-                };
-                let v = f.data[(y * f.width + x) as usize] as f64;
-                sum[c] += v;
-                sum2[c] += v * v;
-                n[c] += 1;
+    let mut diff2 = [0.0f64; 3];
+    let mut nd = [0u64; 3];
+    for y in 0..h {
+        for x in 0..w {
+            let i = (y * w + x) as usize;
+            let c = channel(x, y);
+            let pixel_mean = frames.iter().map(|f| f.data[i] as f64).sum::<f64>() / nf;
+            sum[c] += pixel_mean;
+            sum2[c] += pixel_mean * pixel_mean;
+            n[c] += 1;
+            for pair in frames.windows(2) {
+                let d = pair[1].data[i] as f64 - pair[0].data[i] as f64;
+                diff2[c] += d * d;
+                nd[c] += 1;
             }
         }
     }
-    let mut mean = [0.0f32; 3];
-    let mut sd = [0.0f32; 3];
+    if n.iter().sum::<u64>() == 0 {
+        return None;
+    }
+    let mut out = DarkStatistics { black_level: [0.0; 3], read_noise: [0.0; 3], spatial_sd: [0.0; 3] };
     for c in 0..3 {
         if n[c] == 0 {
             continue;
         }
         let m = sum[c] / n[c] as f64;
-        mean[c] = m as f32;
-        sd[c] = (sum2[c] / n[c] as f64 - m * m).max(0.0).sqrt() as f32;
+        out.black_level[c] = m as f32;
+        out.spatial_sd[c] = (sum2[c] / n[c] as f64 - m * m).max(0.0).sqrt() as f32;
+        out.read_noise[c] = if nd[c] > 0 { (diff2[c] / nd[c] as f64 / 2.0).sqrt() as f32 } else { out.spatial_sd[c] };
     }
     // Mono sensors fill only the green slot; copy it.
     if n[0] == 0 && n[2] == 0 {
-        mean = [mean[1]; 3];
-        sd = [sd[1]; 3];
+        out.black_level = [out.black_level[1]; 3];
+        out.read_noise = [out.read_noise[1]; 3];
+        out.spatial_sd = [out.spatial_sd[1]; 3];
     }
-    (n.iter().sum::<u64>() > 0).then_some((mean, sd))
+    Some(out)
 }
 
 fn residuals<'a>(
@@ -240,5 +288,60 @@ fn als(data: &[(f32, f32)], nq: usize, np: usize, ls: &mut [f64], lf: &mut [f64]
         if den > 0.0 {
             *dm = num / den;
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use frame::{FrameFlags, FrameMeta, Layout, MonoNs};
+    use rand::SeedableRng;
+    use rand_distr::{Distribution, Normal};
+
+    use super::*;
+
+    fn mono(data: Vec<u16>, w: u32) -> Frame {
+        let h = data.len() as u32 / w;
+        let meta = FrameMeta {
+            sequence: 0,
+            exposure_start: MonoNs(0),
+            exposure_end: MonoNs(0),
+            exposure_us: 1000,
+            gain: 1.0,
+            flags: FrameFlags::default(),
+        };
+        Frame { width: w, height: h, layout: Layout::Mono, bit_depth: 12, data, meta }
+    }
+
+    /// Dark frames: `pattern` fixed per pixel plus temporal noise of 3 DN.
+    fn stack(pattern: impl Fn(usize) -> f64) -> Vec<Frame> {
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(7);
+        let noise = Normal::new(0.0, 3.0).unwrap();
+        (0..8)
+            .map(|_| {
+                mono((0..64 * 64).map(|i| (100.0 + pattern(i) + noise.sample(&mut rng)).round() as u16).collect(), 64)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn read_noise_is_temporal_and_a_picture_is_a_light_leak() {
+        let flat = dark_statistics(&stack(|_| 0.0)).unwrap();
+        assert!((flat.black_level[1] - 100.0).abs() < 0.1, "{flat:?}");
+        assert!((flat.read_noise[1] - 3.0).abs() < 0.15, "{flat:?}");
+        assert_eq!(flat.read_noise[0], flat.read_noise[1], "mono fills every slot");
+        assert!(flat.light_leak().is_none(), "{flat:?}");
+        // A fixed pattern (hot columns, or a picture) is not read noise...
+        let bars = dark_statistics(&stack(|i| if (i % 64) < 32 { 0.0 } else { 400.0 })).unwrap();
+        assert!((bars.read_noise[1] - 3.0).abs() < 0.15, "{bars:?}");
+        assert!(bars.spatial_sd[1] > 150.0, "{bars:?}");
+        // ...but it does say the frames are not dark.
+        assert!(bars.light_leak().unwrap().contains("lens cap"));
+    }
+
+    #[test]
+    fn one_frame_falls_back_to_the_spatial_spread() {
+        let one = dark_statistics(&stack(|_| 0.0)[..1]).unwrap();
+        assert!((one.read_noise[1] - 3.0).abs() < 0.3, "{one:?}");
+        assert!(dark_statistics(&[]).is_none());
     }
 }

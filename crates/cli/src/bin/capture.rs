@@ -119,12 +119,7 @@ fn main() -> ExitCode {
                 .ok_or_else(|| anyhow::anyhow!("unknown quality '{}'", args.quality))?;
             let g = capture::geometry_for(&rf, &q);
             let store = cli::calib::CalibrationStore::new(args.calib_dir.as_deref(), &rf.name);
-            if rf.kind != cli::rigfile::RigKind::Sim {
-                anyhow::bail!(
-                    "calibrating a hardware rig needs the V4L2 camera backend, which this build does not include yet"
-                );
-            }
-            let c = capture::calibrate_sim(&rf, &g, &store, &mut rep, which == "white").await?;
+            let c = capture::calibrate(&rf, &g, &store, &mut rep, which == "white").await?;
             rep.emit(cli::progress::Event::Done { summary: serde_json::json!({ "calibration": c.id }) });
             return anyhow::Ok(0);
         }

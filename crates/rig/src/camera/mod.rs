@@ -59,7 +59,7 @@ pub enum CameraError {
         "no usable frame within {waited_ms} ms (is the camera streaming? check its cable and that no other program uses it)"
     )]
     Timeout { waited_ms: u64 },
-    #[error("the camera disappeared ({0}); check its USB cable")]
+    #[error("the camera is not there ({0}); check that it is plugged in and its USB cable")]
     Gone(String),
     #[error("the camera cannot deliver what the measurement needs: {0}")]
     Unsupported(String),

@@ -164,7 +164,7 @@ impl Camera for V4l2Camera {
 fn open_device(path: &Path) -> Result<Device, CameraError> {
     Device::with_path(path).map_err(|e| match e.raw_os_error() {
         Some(libc::ENOENT) | Some(libc::ENODEV) | Some(libc::ENXIO) => {
-            CameraError::Gone(format!("{} is not there ({e}); is the camera plugged in?", path.display()))
+            CameraError::Gone(format!("no device at {}", path.display()))
         }
         Some(libc::EACCES) | Some(libc::EPERM) => CameraError::Io(io::Error::new(
             e.kind(),
@@ -400,9 +400,6 @@ impl Worker {
             controls: recorded,
             warnings,
         };
-        for w in &applied.warnings {
-            tracing::warn!("{}: {w}", path.display());
-        }
         Ok((session, applied))
     }
 
@@ -568,7 +565,7 @@ impl Worker {
                 Err(e) if is_gone(&e) => {
                     self.next_base = s.last_sequence + 1;
                     self.session = None;
-                    return Err(self.gone(&format!("the camera disappeared ({e})")));
+                    return Err(self.gone(&format!("it stopped streaming ({e})")));
                 }
                 Err(e) => {
                     // A streaming error (EIO after a fatal driver error):
