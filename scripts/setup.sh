@@ -16,7 +16,7 @@ for p in build-essential pkg-config libclang-dev qemu-system-x86 busybox-static 
 done
 # The guest's kernel is Debian's linux-image-amd64, downloaded (not
 # installed) by vm-test.sh: apt must know the package.
-kernel_known() { apt-cache depends linux-image-amd64 2>/dev/null | grep -q "Depends: linux-image-[0-9]"; }
+kernel_known() { apt-cache depends linux-image-amd64 2>/dev/null | grep "Depends: linux-image-[0-9]" >/dev/null; }
 
 if [ "${#need_pkgs[@]}" -gt 0 ] || ! kernel_known; then
   echo "setup: installing ${need_pkgs[*]:-nothing, refreshing the package lists}" >&2

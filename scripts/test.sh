@@ -10,7 +10,7 @@ export CARGO_TERM_COLOR=never
 # Proves firmware-protocol is no_std and allocation-free (see PROTOCOL.md).
 cargo build --quiet --manifest-path firmware-protocol/nostd-check/Cargo.toml
 cargo test --workspace --no-fail-fast
-# The V4L2 tests (ignored above: this kernel has no V4L2) in a QEMU guest.
+# The V4L2 tests (not a `cargo test` target: this kernel has no V4L2) in a QEMU guest.
 bash scripts/vm-test.sh
 # The shipped systemd unit, checked against the freshly built daemon.
 cargo build --quiet --bin refl

@@ -6,7 +6,7 @@
 # not installed), a busybox initramfs, and the kernel's `vivid` test driver,
 # which gives a real /dev/video0 with GREY, Y16, Bayer and YUYV formats,
 # error-flagged buffers and disconnects on demand. The guest runs the
-# `vivid` test binary of crates/rig (its tests are #[ignore]d on the host),
+# `vivid` test target of crates/rig (`test = false`: not run by `cargo test`),
 # then the hardware capture path end to end (scripts/vm/guest-capture.sh:
 # `capture` with a hardware rig file, the emulated MCU on a pseudo-terminal,
 # vivid as the camera), and prints both exit statuses; anything else, a
@@ -31,7 +31,7 @@ if [ ! -x "$busybox" ] || ldd "$busybox" >/dev/null 2>&1; then
 fi
 
 # 1. Debian's current kernel package, unpacked once into target/vm.
-pkg=$(apt-cache depends linux-image-amd64 2>/dev/null | awk '/Depends: linux-image-[0-9]/{print $2; exit}')
+pkg=$(apt-cache depends linux-image-amd64 2>/dev/null | awk '/Depends: linux-image-[0-9]/ && !found {print $2; found = 1}')
 if [ -z "$pkg" ]; then
   echo "vm-test: apt does not know linux-image-amd64; run 'apt-get update' (scripts/setup.sh does)" >&2
   exit 1
@@ -105,7 +105,7 @@ for m in /modules/*.ko; do
 done
 echo "vm: booted \$(uname -r); \$(ls /dev/video* 2>/dev/null | tr '\n' ' ')"
 export HOME=/tmp RUST_BACKTRACE=1 REFL_VIVID_REPLUG=/bin/vivid-replug
-/tests/vivid --ignored --test-threads=1 --nocapture $*
+/tests/vivid --test-threads=1 --nocapture $*
 echo "vm: vivid tests exit=\$?"
 sh /tests/capture.sh
 poweroff -f

@@ -76,10 +76,7 @@ pub async fn dark<K: Connector, C: Camera>(
     rep: &mut Reporter,
 ) -> Result<Calibration> {
     rep.stage("calibrate", "dark scan: all LEDs off");
-    let applied = camera.configure(settings).await?;
-    for w in &applied.warnings {
-        rep.warn(format!("camera: {w}"));
-    }
+    crate::session::configure_camera(camera, settings, rep).await?;
     rig.all_off().await?;
     let off_at = clock::to_mono(tokio::time::Instant::now());
     let mut frames = Vec::new();
@@ -109,10 +106,7 @@ pub async fn white<K: Connector, C: Camera>(
     rep: &mut Reporter,
 ) -> Result<Calibration> {
     rep.stage("calibrate", format!("white scan of a reference of albedo {albedo}"));
-    let applied = camera.configure(settings).await?;
-    for w in &applied.warnings {
-        rep.warn(format!("camera: {w}"));
-    }
+    crate::session::configure_camera(camera, settings, rep).await?;
     let plan = CapturePlan {
         steps: 48,
         first_mm: geometry.gantry.travel_min_mm,

@@ -432,26 +432,27 @@ pub async fn run(req: CaptureRequest, rep: &mut Reporter, cancel: watch::Receive
     info.calibration = calibration.clone();
     info.calibration_source = Some(cal_source.clone());
     let cs = camera_settings(&geometry, info.plan.exposures_us[0], info.plan.gain, s.fps);
-    let applied = match s.camera.configure(&cs).await {
+    let configured = async {
+        let applied = session::configure_camera(&mut s.camera, &cs, rep).await?;
+        if resume && info.sensor.bit_depth != applied.bit_depth {
+            bail!(
+                "the capture's frames are {}-bit but the camera now delivers {}-bit ({}); resume with the format it \
+                 was made with",
+                info.sensor.bit_depth,
+                applied.bit_depth,
+                applied.format
+            );
+        }
+        anyhow::Ok(applied)
+    }
+    .await;
+    let applied = match configured {
         Ok(a) => a,
         Err(e) => {
             s.close().await;
-            return Err(e).context("cannot configure the camera");
+            return Err(e);
         }
     };
-    for w in &applied.warnings {
-        rep.warn(format!("camera: {w}"));
-    }
-    if resume && info.sensor.bit_depth != applied.bit_depth {
-        s.close().await;
-        bail!(
-            "the capture's frames are {}-bit but the camera now delivers {}-bit ({}); resume with the format it was \
-             made with",
-            info.sensor.bit_depth,
-            applied.bit_depth,
-            applied.format
-        );
-    }
     info.sensor = SensorInfo { bit_depth: applied.bit_depth, e_per_dn: s.e_per_dn };
     let mut cd = match root {
         Some(cd) => cd,

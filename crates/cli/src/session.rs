@@ -15,6 +15,7 @@ use sim::camera::{CameraTiming, LedTruth, SensorModel, SimCamera, SimCameraConfi
 use sim::{FaultSpec, McuConfig, SimMcu, World};
 
 use crate::paths;
+use crate::progress::Reporter;
 use crate::rigfile::RigFile;
 
 /// An open rig: the serial driver and the camera, and on the simulated rig
@@ -44,6 +45,20 @@ impl Session {
             let _ = mcu.stop().await;
         }
     }
+}
+
+/// Configure a camera for a scan or a capture and pass on its warnings
+/// (non-radiometric format, missing controls) to the operator.
+pub async fn configure_camera<C: Camera>(
+    camera: &mut C,
+    settings: &CameraSettings,
+    rep: &mut Reporter,
+) -> Result<AppliedSettings> {
+    let applied = camera.configure(settings).await.context("cannot configure the camera")?;
+    for w in &applied.warnings {
+        rep.warn(format!("camera: {w}"));
+    }
+    Ok(applied)
 }
 
 /// The rig's camera: the simulated one or a V4L2 device.

@@ -11,7 +11,7 @@ use nokhwa::utils::{ApiBackend, CameraIndex};
 use serde::Serialize;
 use v4l::video::Capture;
 
-use super::pixel::PixelFormat;
+use super::pixel::{self, PixelFormat};
 
 /// One camera as the operator sees it in the listing.
 #[derive(Clone, Debug, Serialize)]
@@ -27,6 +27,8 @@ pub struct CameraListing {
 
 #[derive(Clone, Debug, Serialize)]
 pub struct FormatListing {
+    #[serde(skip)]
+    pub format: PixelFormat,
     pub code: String,
     pub description: String,
     /// `true` if a capture may use it (YUYV is usable, with a warning).
@@ -37,17 +39,12 @@ pub struct FormatListing {
 }
 
 impl CameraListing {
-    /// The format a capture would choose on its own.
+    /// The format a capture would choose on its own ([`pixel::choose`]).
     pub fn preferred(&self) -> Option<&FormatListing> {
-        self.formats
-            .iter()
-            .filter(|f| f.usable)
-            .max_by_key(|f| PixelFormat::from_fourcc(code_bytes(&f.code)).preference())
+        let offered: Vec<PixelFormat> = self.formats.iter().map(|f| f.format).collect();
+        let best = pixel::choose(&offered, None).ok()?;
+        self.formats.iter().find(|f| f.format == best)
     }
-}
-
-fn code_bytes(code: &str) -> [u8; 4] {
-    super::pixel::fourcc_from_name(code).unwrap_or(*b"????")
 }
 
 /// Every V4L2 capture device. An empty list means none is plugged in (or
@@ -100,28 +97,31 @@ fn examine(path: &std::path::Path) -> Result<Option<(String, Vec<FormatListing>)
         let pf = PixelFormat::from_fourcc(d.fourcc.repr);
         let refusal = pf.refusal();
         let note = refusal.clone().or_else(|| pf.warning()).map(|s| s.split(';').next().unwrap_or("").to_string());
-        let sizes = dev
-            .enum_framesizes(d.fourcc)
-            .map(|v| {
-                v.into_iter()
-                    .flat_map(|f| match f.size {
-                        v4l::framesize::FrameSizeEnum::Discrete(s) => vec![format!("{}x{}", s.width, s.height)],
-                        v4l::framesize::FrameSizeEnum::Stepwise(s) => {
-                            vec![format!("{}x{} to {}x{}", s.min_width, s.min_height, s.max_width, s.max_height)]
-                        }
-                    })
-                    .collect()
-            })
-            .unwrap_or_default();
         formats.push(FormatListing {
+            format: pf,
+            sizes: frame_sizes(&dev, d.fourcc),
             code: pf.name().trim_end().to_string(),
             description: d.description.clone(),
             usable: refusal.is_none(),
             note,
-            sizes,
         });
     }
     Ok(Some((driver, formats)))
+}
+
+/// The frame sizes a device offers in one format, as text: `"640x480"`, or
+/// `"16x16 to 1920x1080"` for a range. Empty if the driver will not say.
+pub fn frame_sizes(dev: &v4l::Device, fourcc: v4l::FourCC) -> Vec<String> {
+    let Ok(sizes) = dev.enum_framesizes(fourcc) else { return Vec::new() };
+    sizes
+        .into_iter()
+        .map(|f| match f.size {
+            v4l::framesize::FrameSizeEnum::Discrete(s) => format!("{}x{}", s.width, s.height),
+            v4l::framesize::FrameSizeEnum::Stepwise(s) => {
+                format!("{}x{} to {}x{}", s.min_width, s.min_height, s.max_width, s.max_height)
+            }
+        })
+        .collect()
 }
 
 /// The listing as the operator reads it.
@@ -179,6 +179,7 @@ mod tests {
     #[test]
     fn listing_marks_refused_and_preferred_formats() {
         let f = |code: &str, usable: bool, note: Option<&str>| FormatListing {
+            format: PixelFormat::from_fourcc(pixel::fourcc_from_name(code).unwrap()),
             code: code.into(),
             description: code.into(),
             usable,

@@ -27,67 +27,55 @@ pub enum PixelFormat {
     Other([u8; 4]),
 }
 
+/// Every code the reflectometer knows, one row per format (`MJPG` before
+/// its alias `JPEG`, so that is the code a format is named by).
+const CODES: [([u8; 4], PixelFormat); 23] = {
+    use BayerPattern::*;
+    use PixelFormat::*;
+    [
+        (*b"GREY", Grey),
+        (*b"Y10 ", Mono16 { bits: 10 }),
+        (*b"Y12 ", Mono16 { bits: 12 }),
+        (*b"Y16 ", Mono16 { bits: 16 }),
+        (*b"BA81", Bayer8(Bggr)),
+        (*b"GBRG", Bayer8(Gbrg)),
+        (*b"GRBG", Bayer8(Grbg)),
+        (*b"RGGB", Bayer8(Rggb)),
+        (*b"BG10", Bayer16 { pattern: Bggr, bits: 10 }),
+        (*b"GB10", Bayer16 { pattern: Gbrg, bits: 10 }),
+        (*b"BA10", Bayer16 { pattern: Grbg, bits: 10 }),
+        (*b"RG10", Bayer16 { pattern: Rggb, bits: 10 }),
+        (*b"BG12", Bayer16 { pattern: Bggr, bits: 12 }),
+        (*b"GB12", Bayer16 { pattern: Gbrg, bits: 12 }),
+        (*b"BA12", Bayer16 { pattern: Grbg, bits: 12 }),
+        (*b"RG12", Bayer16 { pattern: Rggb, bits: 12 }),
+        (*b"BYR2", Bayer16 { pattern: Bggr, bits: 16 }),
+        (*b"GB16", Bayer16 { pattern: Gbrg, bits: 16 }),
+        (*b"GR16", Bayer16 { pattern: Grbg, bits: 16 }),
+        (*b"RG16", Bayer16 { pattern: Rggb, bits: 16 }),
+        (*b"YUYV", Yuyv),
+        (*b"MJPG", Mjpeg),
+        (*b"JPEG", Mjpeg),
+    ]
+};
+
 impl PixelFormat {
     pub fn from_fourcc(code: [u8; 4]) -> Self {
-        use BayerPattern::*;
-        match &code {
-            b"GREY" => PixelFormat::Grey,
-            b"Y10 " => PixelFormat::Mono16 { bits: 10 },
-            b"Y12 " => PixelFormat::Mono16 { bits: 12 },
-            b"Y16 " => PixelFormat::Mono16 { bits: 16 },
-            b"BA81" => PixelFormat::Bayer8(Bggr),
-            b"GBRG" => PixelFormat::Bayer8(Gbrg),
-            b"GRBG" => PixelFormat::Bayer8(Grbg),
-            b"RGGB" => PixelFormat::Bayer8(Rggb),
-            b"BG10" => PixelFormat::Bayer16 { pattern: Bggr, bits: 10 },
-            b"GB10" => PixelFormat::Bayer16 { pattern: Gbrg, bits: 10 },
-            b"BA10" => PixelFormat::Bayer16 { pattern: Grbg, bits: 10 },
-            b"RG10" => PixelFormat::Bayer16 { pattern: Rggb, bits: 10 },
-            b"BG12" => PixelFormat::Bayer16 { pattern: Bggr, bits: 12 },
-            b"GB12" => PixelFormat::Bayer16 { pattern: Gbrg, bits: 12 },
-            b"BA12" => PixelFormat::Bayer16 { pattern: Grbg, bits: 12 },
-            b"RG12" => PixelFormat::Bayer16 { pattern: Rggb, bits: 12 },
-            b"BYR2" => PixelFormat::Bayer16 { pattern: Bggr, bits: 16 },
-            b"GB16" => PixelFormat::Bayer16 { pattern: Gbrg, bits: 16 },
-            b"GR16" => PixelFormat::Bayer16 { pattern: Grbg, bits: 16 },
-            b"RG16" => PixelFormat::Bayer16 { pattern: Rggb, bits: 16 },
-            b"YUYV" => PixelFormat::Yuyv,
-            b"MJPG" | b"JPEG" => PixelFormat::Mjpeg,
-            _ => PixelFormat::Other(code),
-        }
+        CODES.iter().find(|(c, _)| *c == code).map_or(PixelFormat::Other(code), |&(_, f)| f)
     }
 
+    /// The format's code. A depth no driver offers (a hand-made
+    /// `Mono16 { bits: 14 }`) is named by its 16-bit container.
     pub fn fourcc(self) -> [u8; 4] {
-        use BayerPattern::*;
-        match self {
-            PixelFormat::Grey => *b"GREY",
-            PixelFormat::Mono16 { bits: 10 } => *b"Y10 ",
-            PixelFormat::Mono16 { bits: 12 } => *b"Y12 ",
-            PixelFormat::Mono16 { .. } => *b"Y16 ",
-            PixelFormat::Bayer8(p) => match p {
-                Bggr => *b"BA81",
-                Gbrg => *b"GBRG",
-                Grbg => *b"GRBG",
-                Rggb => *b"RGGB",
-            },
-            PixelFormat::Bayer16 { pattern, bits } => match (pattern, bits) {
-                (Bggr, 10) => *b"BG10",
-                (Gbrg, 10) => *b"GB10",
-                (Grbg, 10) => *b"BA10",
-                (Rggb, 10) => *b"RG10",
-                (Bggr, 12) => *b"BG12",
-                (Gbrg, 12) => *b"GB12",
-                (Grbg, 12) => *b"BA12",
-                (Rggb, 12) => *b"RG12",
-                (Bggr, _) => *b"BYR2",
-                (Gbrg, _) => *b"GB16",
-                (Grbg, _) => *b"GR16",
-                (Rggb, _) => *b"RG16",
-            },
-            PixelFormat::Yuyv => *b"YUYV",
-            PixelFormat::Mjpeg => *b"MJPG",
-            PixelFormat::Other(c) => c,
-        }
+        let named = match self {
+            PixelFormat::Other(c) => return c,
+            PixelFormat::Mono16 { bits } if !matches!(bits, 10 | 12) => PixelFormat::Mono16 { bits: 16 },
+            PixelFormat::Bayer16 { pattern, bits } if !matches!(bits, 10 | 12) => {
+                PixelFormat::Bayer16 { pattern, bits: 16 }
+            }
+            f => f,
+        };
+        CODES.iter().find(|(_, f)| *f == named).map_or([b'?'; 4], |&(c, _)| c)
     }
 
     /// The code as text (`"Y16 "` keeps its space).
@@ -325,5 +313,17 @@ mod tests {
         assert_eq!(fourcc_text(be), "Y16 -BE");
         assert!(PixelFormat::from_fourcc(be).refusal().unwrap().contains("Y16 -BE"));
         assert_eq!(fourcc_text(*b"GREY"), "GREY");
+    }
+
+    #[test]
+    fn every_code_names_its_format_and_back() {
+        for (code, f) in CODES {
+            assert_eq!(PixelFormat::from_fourcc(code), f);
+            if code != *b"JPEG" {
+                assert_eq!(f.fourcc(), code, "{f:?}");
+            }
+        }
+        assert_eq!(PixelFormat::Mono16 { bits: 14 }.fourcc(), *b"Y16 ");
+        assert_eq!(PixelFormat::from_fourcc(*b"JPEG").fourcc(), *b"MJPG");
     }
 }

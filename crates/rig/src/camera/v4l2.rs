@@ -314,16 +314,7 @@ impl Worker {
             )));
         }
         if (got.width, got.height) != (s.width, s.height) {
-            let sizes = dev
-                .enum_framesizes(got.fourcc)
-                .map(|v| {
-                    v.into_iter()
-                        .flat_map(|f| f.size.to_discrete())
-                        .map(|d| format!("{}x{}", d.width, d.height))
-                        .collect::<Vec<_>>()
-                        .join(", ")
-                })
-                .unwrap_or_default();
+            let sizes = super::discover::frame_sizes(&dev, got.fourcc).join(", ");
             return Err(CameraError::Unsupported(format!(
                 "the rig's geometry is calibrated for {}x{} but the camera gives {}x{} in {} (sizes it offers: {sizes}); \
                  set [geometry.camera] width/height to one of them and calibrate again",
