@@ -5,75 +5,12 @@
 //! camera) keep each run to seconds; the simulation is seeded, so two runs
 //! of one capture give the same frames.
 
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output, Stdio};
+use std::process::Stdio;
 use std::time::{Duration, Instant};
 
-const CAPTURE: &str = env!("CARGO_BIN_EXE_capture");
-const REFL: &str = env!("CARGO_BIN_EXE_refl");
-
-/// A scratch directory with its own data directory (calibrations).
-struct Lab {
-    dir: tempfile::TempDir,
-}
-
-impl Lab {
-    fn new() -> Self {
-        Self { dir: tempfile::tempdir().unwrap() }
-    }
-
-    fn path(&self, name: &str) -> PathBuf {
-        self.dir.path().join(name)
-    }
-
-    fn cmd(&self, exe: &str) -> Command {
-        let mut c = Command::new(exe);
-        c.env("REFLECTOMETER_DATA", self.path("data")).env("RUST_LOG", "warn").stdin(Stdio::null());
-        c
-    }
-
-    /// A `capture` of a small simulated sample (`steps` gantry steps) into `out`.
-    fn capture_cmd(&self, sample: &str, out: &str, steps: u32) -> Command {
-        let mut c = self.cmd(CAPTURE);
-        c.args(["--sample", sample, "--quality", "fast", "--grid", "12", "--camera-px", "64"])
-            .arg("--steps")
-            .arg(steps.to_string())
-            .arg("--out")
-            .arg(self.path(out));
-        c
-    }
-
-    /// `capture` of a small simulated sample into `out`, with extra args.
-    fn capture(&self, sample: &str, out: &str, extra: &[&str]) -> Output {
-        self.capture_cmd(sample, out, 12).args(extra).output().unwrap()
-    }
-
-    fn refl(&self, args: &[&str]) -> Output {
-        self.cmd(REFL).args(args).output().unwrap()
-    }
-}
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
-}
-
-fn assert_ok(o: &Output, what: &str) {
-    assert!(o.status.success(), "{what} failed ({:?}):\n{}", o.status.code(), stderr(o));
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
-}
-
-fn same_files(a: &Path, b: &Path, names: &[&str]) {
-    for n in names {
-        let (x, y) = (std::fs::read(a.join(n)).unwrap(), std::fs::read(b.join(n)).unwrap());
-        assert!(x == y, "{n} differs between {} and {}", a.display(), b.display());
-    }
-}
-
-const MATERIAL_FILES: &[&str] =
-    &["maps.exr", "ndf.exr", "ndf_partial.exr", "model_ward_iso.exr", "model_ward_aniso.exr"];
+#[path = "support/lab.rs"]
+mod lab;
+use lab::*;
 
 #[test]
 fn capture_fits_renders_and_every_refl_tool_reads_it() {
@@ -190,6 +127,11 @@ fn injected_faults_are_survived_and_reported() {
     let report: serde_json::Value =
         serde_json::from_slice(&std::fs::read(lab.path("camera/report.json")).unwrap()).unwrap();
     assert!(report["frames"]["retakes"].as_u64().unwrap() > 0, "{}", report["frames"]);
+    // Flagged and stale frames are counted and the operator is told.
+    let discards = &report["frames"]["camera_discards"];
+    assert!(discards["error_flagged"].as_u64().unwrap() > 0, "{discards}");
+    assert!(discards["stale"].as_u64().unwrap() > 0, "{discards}");
+    assert!(stderr(&o).contains("flagged as damaged"), "{}", stderr(&o));
     let clean: serde_json::Value =
         serde_json::from_slice(&std::fs::read(lab.path("clean/report.json")).unwrap()).unwrap();
     assert_eq!(report["frames"]["committed"], clean["frames"]["committed"], "every shot exactly once");
@@ -218,21 +160,34 @@ fn bad_input_is_refused_clearly_and_nothing_is_lost() {
     assert!(stderr(&o).contains("--resume"), "suggests --resume: {}", stderr(&o));
     assert_eq!(std::fs::read(lab.path("kept/manifest.jsonl")).unwrap(), before);
 
-    let o = lab.refl(&["fit", s(lab.dir.path())]);
-    assert!(!o.status.success());
-    assert!(stderr(&o).contains("not a capture directory"), "{}", stderr(&o));
-    let o = lab.refl(&["render", s(&lab.path("nothing")), "-o", s(&lab.path("r.png"))]);
-    assert!(!o.status.success());
-}
+    // `--out` at a file, or at a directory holding something else: refused
+    // with the usage code, left as it was.
+    std::fs::write(lab.path("a-file"), "notes").unwrap();
+    let o = lab.capture("satin", "a-file", &[]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert_eq!(std::fs::read(lab.path("a-file")).unwrap(), b"notes");
+    std::fs::create_dir(lab.path("papers")).unwrap();
+    std::fs::write(lab.path("papers/wang2008.pdf"), "pdf").unwrap();
+    let o = lab.capture("satin", "papers", &[]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("not a capture"), "{}", stderr(&o));
+    assert_eq!(std::fs::read_dir(lab.path("papers")).unwrap().count(), 1);
 
-/// Wait until `path` holds at least `bytes` bytes while `child` runs.
-fn wait_for_bytes(child: &mut std::process::Child, path: &Path, bytes: u64) {
-    let t = Instant::now();
-    while std::fs::metadata(path).map(|m| m.len()).unwrap_or(0) < bytes {
-        assert!(t.elapsed() < Duration::from_secs(120), "{} did not grow", path.display());
-        assert!(child.try_wait().unwrap().is_none(), "the process ended early");
-        std::thread::sleep(Duration::from_millis(10));
-    }
+    // Every `refl` tool given something that is not what it reads: exit 2.
+    let o = lab.refl(&["fit", s(lab.dir.path())]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("not a capture directory"), "{}", stderr(&o));
+    let o = lab.refl(&["eval", s(lab.dir.path())]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    let o = lab.refl(&["inspect", s(&lab.path("papers"))]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    let o = lab.refl(&["render", s(&lab.path("nothing")), "-o", s(&lab.path("r.png"))]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    let o = lab.refl(&["import-rgl", s(&lab.path("a-file")), "--out", s(&lab.path("m"))]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    let o = lab.refl(&["import-merl", s(&lab.path("no-such.binary")), "--out", s(&lab.path("m"))]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(!lab.path("m").exists());
 }
 
 #[test]

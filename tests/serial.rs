@@ -234,6 +234,35 @@ async fn a_link_that_never_comes_back_ends_with_a_clear_error_and_leds_off() {
     sim.stop().await.unwrap();
 }
 
+/// A controller that stops answering while its port still opens (wedged
+/// firmware behind a live USB link): the operation gives up after its
+/// recovery budget, saying what to do, instead of reconnecting forever.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_controller_that_stops_answering_exhausts_a_bounded_budget() {
+    let dir = tempfile::tempdir().unwrap();
+    let faults = FaultSpec::parse("hang-at=60").unwrap();
+    let world = World::new();
+    let sim = SimMcu::spawn_pty(fast_mcu(), faults, world.clone(), Some(link_path(&dir))).await.unwrap();
+    let mut rig = open(&sim).await;
+    let budget = rig.settings().max_recoveries_per_op;
+    let shots = plan(4, 40);
+    let mut ex = Dwell { dwell: Duration::from_micros(100), committed: Vec::new(), discarded: 0 };
+    let err = sequence::run(&mut rig, &shots, &mut ex).await.expect_err("a hung controller cannot finish the plan");
+    assert!(matches!(err, RigError::GaveUp { n, .. } if n == budget), "{err}");
+    assert!(err.to_string().contains("power-cycle the controller"), "{err}");
+    let reconnects =
+        rig.recoveries().iter().filter(|r| matches!(r, rig::mcu::Recovery::Reconnected { .. })).count();
+    assert!((1..=budget as usize).contains(&reconnects), "{reconnects} reconnects for a budget of {budget}");
+    // Every later operation fails the same bounded way (a resume of a
+    // capture on the same wedged controller).
+    let before = rig.recoveries().len();
+    let again = rig.home().await.expect_err("still wedged");
+    assert!(matches!(again, RigError::GaveUp { .. }), "{again}");
+    let more = rig.recoveries()[before..].iter().filter(|r| matches!(r, rig::mcu::Recovery::Reconnected { .. })).count();
+    assert!(more <= budget as usize, "{more} reconnects in the second operation");
+    sim.stop().await.unwrap();
+}
+
 /// Environment variable that turns this test binary into the host process
 /// of [`killing_the_host_leaves_the_leds_off_within_the_watchdog_time`].
 const HOST_PORT_ENV: &str = "REFLECTOMETER_TEST_HOST_PORT";

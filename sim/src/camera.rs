@@ -460,4 +460,13 @@ impl Camera for SimCamera {
             }
         }
     }
+
+    async fn discards(&mut self) -> rig::camera::Discards {
+        rig::camera::Discards {
+            error_flagged: self.filter.dropped_error,
+            stale: self.filter.dropped_early,
+            settling: self.filter.dropped_settling,
+            short: 0,
+        }
+    }
 }

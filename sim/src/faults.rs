@@ -8,6 +8,8 @@
 //! - `reboot-at=N`: the MCU resets when the N-th valid command arrives (that command is lost).
 //! - `disconnect-at=N`: the link disappears when the N-th valid command arrives, and comes back
 //!   (as a freshly powered MCU on a new device node) after `reconnect-ms` (default 300).
+//! - `hang-at=N`: from the N-th valid command on, the MCU never answers again, even after
+//!   the host reopens the port (wedged firmware behind a live USB link).
 //! - `seed=N`: seed of the fault random stream (default 1).
 //!
 //! Camera faults use the same spec (ignored by the MCU): `frame-timeout-at=N`,
@@ -27,6 +29,8 @@ pub struct FaultSpec {
     pub reboot_at: Vec<u64>,
     pub disconnect_at: Vec<u64>,
     pub reconnect_ms: u64,
+    /// The MCU stops answering at this command and never answers again.
+    pub hang_at: Option<u64>,
     pub seed: u64,
     /// Camera: the N-th frame request never completes (the driver must time out).
     pub frame_timeout_at: Vec<u64>,
@@ -62,6 +66,7 @@ impl FaultSpec {
             && self.delay_ms == 0
             && self.reboot_at.is_empty()
             && self.disconnect_at.is_empty()
+            && self.hang_at.is_none()
     }
 
     pub fn parse(spec: &str) -> Result<Self, FaultSpecError> {
@@ -94,6 +99,7 @@ impl FaultSpec {
                 "reboot-at" => f.reboot_at.push(int(v)?),
                 "disconnect-at" => f.disconnect_at.push(int(v)?),
                 "reconnect-ms" => f.reconnect_ms = int(v)?,
+                "hang-at" => f.hang_at = Some(int(v)?),
                 "seed" => f.seed = int(v)?,
                 "frame-timeout-at" => f.frame_timeout_at.push(int(v)?),
                 "error-frame" => f.error_frame = prob(v)?,
@@ -102,7 +108,7 @@ impl FaultSpec {
                 other => {
                     return Err(FaultSpecError(format!(
                         "unknown fault '{other}'; known: corrupt, drop, dup, delay-ms, reboot-at, disconnect-at, \
-                         reconnect-ms, seed, frame-timeout-at, error-frame, stale-frame, camera-unplug-at"
+                         reconnect-ms, hang-at, seed, frame-timeout-at, error-frame, stale-frame, camera-unplug-at"
                     )));
                 }
             }

@@ -108,6 +108,9 @@ pub async fn serve<T: AsyncRead + AsyncWrite + Unpin>(
                     if CommandPacket::decode(&f).is_ok() {
                         faults.commands_seen += 1;
                         let k = faults.commands_seen;
+                        if faults.spec.hang_at.is_some_and(|h| k >= h) {
+                            continue;
+                        }
                         if faults.spec.disconnect_at.contains(&k) {
                             tracing::info!(command = k, "injected fault: link disconnect");
                             return Ok(LinkEnd::Disconnect);

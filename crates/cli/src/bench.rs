@@ -281,7 +281,7 @@ pub async fn realtime(sample: &str, steps: u32, led_stride: u8, fps: f32) -> Res
     let g = crate::capture::geometry_for(&rf, &q);
     // Calibrate at simulation speed first (a real-time one would take minutes).
     let calib = dir.join("calibration");
-    let store = crate::calib::CalibrationStore::new(Some(&calib), &rf.name);
+    let store = crate::calib::CalibrationStore::new(Some(&calib), &rf.name)?;
     let mut quiet = Reporter::new(Mode::Silent);
     crate::capture::calibrate(&rf, &g, &store, &mut quiet, true).await?;
     rf.sim.realtime = true;

@@ -21,9 +21,12 @@ pub struct CalibrationStore {
 }
 
 impl CalibrationStore {
-    pub fn new(base: Option<&Path>, rig_name: &str) -> Self {
-        let base = base.map(Path::to_path_buf).unwrap_or_else(|| paths::data_dir().join("calibration"));
-        Self { dir: base.join(rig_name) }
+    pub fn new(base: Option<&Path>, rig_name: &str) -> Result<Self> {
+        let base = match base {
+            Some(b) => b.to_path_buf(),
+            None => paths::data_dir()?.join("calibration"),
+        };
+        Ok(Self { dir: base.join(rig_name) })
     }
 
     pub fn dir(&self) -> &Path {

@@ -115,6 +115,38 @@ fn quality(req: &CaptureRequest) -> Result<Quality> {
     q.apply(&req.overrides)
 }
 
+/// Refuse an `--out` that cannot take a new capture (another capture, a
+/// file, a directory holding anything) before anything is touched.
+fn check_out_dir(out: &Path) -> Result<()> {
+    if out.join(CaptureDir::INFO).exists() {
+        let other = CaptureDir::read_info(out).map_err(|e| crate::usage(e.into()))?;
+        return Err(crate::usage(anyhow!(
+            "{} already holds a capture of '{}' made {}; choose another --out, or continue it with --resume {}",
+            out.display(),
+            other.sample,
+            other.created_utc,
+            out.display()
+        )));
+    }
+    match std::fs::symlink_metadata(out) {
+        Err(_) => Ok(()),
+        Ok(m) if !m.is_dir() => {
+            Err(crate::usage(anyhow!("--out {} is a file, not a directory; choose a new directory", out.display())))
+        }
+        Ok(_) => {
+            let entries = std::fs::read_dir(out).map(|d| d.count()).unwrap_or(0);
+            if entries > 0 {
+                return Err(crate::usage(anyhow!(
+                    "--out {} holds {entries} entries and is not a capture; choose a new or empty directory \
+                     (nothing was changed)",
+                    out.display()
+                )));
+            }
+            Ok(())
+        }
+    }
+}
+
 /// The plan a quality preset asks for on a rig.
 pub fn plan_for(q: &Quality, g: &RigGeometry) -> Result<CapturePlan> {
     let plan = CapturePlan {
@@ -149,6 +181,12 @@ async fn calibration_for(
 ) -> Result<(Calibration, String)> {
     if let Some((path, c)) = store.newest()? {
         if c.led_scale.len() == geometry.bar.n_leds as usize && !c.flat_field.is_empty() {
+            c.validate().map_err(|e| {
+                crate::usage(anyhow!(
+                    "{}: {e}; run `capture --calibrate dark` and `capture --calibrate white` again",
+                    path.display()
+                ))
+            })?;
             return Ok((c, path.display().to_string()));
         }
     }
@@ -199,6 +237,13 @@ pub async fn calibrate(
     .await;
     s.close().await;
     let c = result?;
+    c.validate().map_err(|e| {
+        anyhow!(
+            "the scan gave a calibration that cannot be used ({e}); nothing was saved: check that every LED lights \
+             and that the {} is in place",
+            if white { "white reference" } else { "lens cap" }
+        )
+    })?;
     let path = store.save(&c)?;
     rep.stage("calibrate", format!("saved {}", path.display()));
     Ok(c)
@@ -340,6 +385,8 @@ pub struct Summary {
 }
 
 /// Run a capture request to the end (or to an interruption).
+/// `cancel` turning true is a stop request, honoured at every stage: the
+/// frames (e-stop, everything stored kept), the fit and the renders.
 pub async fn run(req: CaptureRequest, rep: &mut Reporter, cancel: watch::Receiver<bool>) -> Result<Summary> {
     let started = Instant::now();
     let (rf, rig_source) = RigFile::load(req.rig_file.as_deref()).map_err(crate::usage)?;
@@ -366,16 +413,7 @@ pub async fn run(req: CaptureRequest, rep: &mut Reporter, cancel: watch::Receive
         let sample = req.sample.clone().ok_or_else(|| crate::usage(anyhow!("name the sample with --sample NAME")))?;
         let out =
             req.out.clone().ok_or_else(|| crate::usage(anyhow!("choose the capture directory with --out DIR")))?;
-        if out.join(CaptureDir::INFO).exists() {
-            let other = CaptureDir::read_info(&out)?;
-            return Err(crate::usage(anyhow!(
-                "{} already holds a capture of '{}' made {}; choose another --out, or continue it with --resume {}",
-                out.display(),
-                other.sample,
-                other.created_utc,
-                out.display()
-            )));
-        }
+        check_out_dir(&out)?;
         if rf.kind == RigKind::Sim {
             sim_material(&sample, req.sim_material.as_deref()).map_err(crate::usage)?;
         }
@@ -405,8 +443,11 @@ pub async fn run(req: CaptureRequest, rep: &mut Reporter, cancel: watch::Receive
         (None, info, q, HashSet::new())
     };
     let geometry = info.geometry.clone();
-    let cal_store = CalibrationStore::new(req.calib_dir.as_deref(), &rf.name);
+    let cal_store = CalibrationStore::new(req.calib_dir.as_deref(), &rf.name)?;
     let (calibration, cal_source) = if resume {
+        info.calibration.validate().map_err(|e| {
+            crate::usage(anyhow!("{}: the calibration it records is not usable: {e}", CaptureDir::INFO))
+        })?;
         (info.calibration.clone(), info.calibration_source.clone().unwrap_or_default())
     } else {
         calibration_for(&rf, &geometry, &cal_store, rep).await?
@@ -478,7 +519,8 @@ pub async fn run(req: CaptureRequest, rep: &mut Reporter, cancel: watch::Receive
         (!req.no_fit).then(|| FitJob::start(fit_inputs, q.fit.clone(), crate::output::stages(&q, &req.overrides)));
     if let Some(job) = &job {
         if resume {
-            let n = tokio::task::block_in_place(|| crate::fitjob::replay(&root, cd.entries(), job))?;
+            let stop = output::stop_requested(&cancel);
+            let n = tokio::task::block_in_place(|| crate::fitjob::replay(&root, cd.entries(), job, &stop))?;
             rep.stage("fit", format!("replayed {n} stored frames into the fitter"));
         }
     }
@@ -493,7 +535,8 @@ pub async fn run(req: CaptureRequest, rep: &mut Reporter, cancel: watch::Receive
     };
     let capture_started = Instant::now();
     let outcome =
-        capture_frames(&mut s.rig, &mut s.camera, &mut cd, job.as_ref(), &done, rep, req.stop_after, cancel).await;
+        capture_frames(&mut s.rig, &mut s.camera, &mut cd, job.as_ref(), &done, rep, req.stop_after, cancel.clone())
+            .await;
     s.close().await;
     report.time("capture_s", capture_started.elapsed().as_secs_f64());
     let link = s.rig.link_stats();
@@ -505,30 +548,56 @@ pub async fn run(req: CaptureRequest, rep: &mut Reporter, cancel: watch::Receive
         "mean_rtt_us": link.mean_rtt().map(|d| d.as_secs_f64() * 1e6),
     });
     report.recoveries = s.rig.recoveries().iter().map(|r| format!("{r:?}")).collect();
-    let stats = match outcome {
-        Ok(stats) => stats,
+    let (stats, discards) = match outcome {
+        Ok(x) => x,
         Err(e) => {
             let _ = cd.set_status(CaptureStatus::Interrupted);
             drop(job);
             return Err(e);
         }
     };
-    cd.set_status(CaptureStatus::Complete)?;
+    // Every frame is stored; the capture is complete once its outputs are.
+    cd.set_status(if job.is_some() { CaptureStatus::Captured } else { CaptureStatus::Complete })?;
     cd.sync()?;
-    report.frames = serde_json::json!({ "committed": stats.committed, "retakes": stats.retakes, "moves": stats.moves });
+    report.frames = serde_json::json!({
+        "committed": stats.committed,
+        "retakes": stats.retakes,
+        "moves": stats.moves,
+        "camera_discards": discards,
+    });
+    if discards.error_flagged + discards.stale + discards.short > 0 {
+        rep.warn(format!(
+            "the camera delivered {} frames flagged as damaged, {} stale frames (exposed before their LED was lit) \
+             and {} short frames; each was discarded and taken again",
+            discards.error_flagged, discards.stale, discards.short
+        ));
+    }
     rep.stage(
         "capture",
         format!("{} frames stored in {:.1} s", cd.entries().len(), capture_started.elapsed().as_secs_f64()),
     );
 
     let material_dir = match job {
-        Some(job) => Some(output::finish_fit(job, &info, &q, &root, rep, &mut report).await?),
+        Some(job) => match output::finish_fit(job, &info, &q, &root, rep, &mut report, &cancel).await {
+            Ok(dir) => Some(dir),
+            Err(e) => {
+                if e.downcast_ref::<Interrupted>().is_some() {
+                    rep.warn(format!(
+                        "stopped during the fit; every frame is stored: `capture --resume {0}` or `refl fit {0}` \
+                         fits it",
+                        root.display()
+                    ));
+                }
+                return Err(e);
+            }
+        },
         None => None,
     };
     report.time("total_s", started.elapsed().as_secs_f64());
     report.peak_memory_mb = report::peak_memory_mb();
     report.material = material_dir.as_ref().map(|p| p.display().to_string());
     output::write_report(&root, &report)?;
+    cd.set_status(CaptureStatus::Complete)?;
     rep.emit(Event::Done { summary: serde_json::to_value(&report)? });
     Ok(Summary { dir: root, material: material_dir, report })
 }
@@ -544,7 +613,7 @@ async fn capture_frames<K: Connector, C: Camera>(
     rep: &mut Reporter,
     stop_after: Option<u64>,
     mut cancel: watch::Receiver<bool>,
-) -> Result<sequence::SequenceStats> {
+) -> Result<(sequence::SequenceStats, rig::camera::Discards)> {
     let plan = cd.info().plan.clone();
     let work = async {
         rep.stage("rig", "homing");
@@ -595,14 +664,13 @@ async fn capture_frames<K: Connector, C: Camera>(
             late: 0,
         };
         let stats = sequence::run(rig, &todo, &mut shooter).await?;
-        anyhow::Ok(stats)
+        let discards = shooter.camera.discards().await;
+        anyhow::Ok((stats, discards))
     };
-    let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())
-        .context("cannot watch for SIGTERM")?;
+    // Stop requests (Ctrl-C, SIGTERM, a cancelled daemon job) all arrive
+    // through `cancel`: the binaries' one signal watcher sets it.
     let r = tokio::select! {
         r = work => r,
-        _ = tokio::signal::ctrl_c() => Err(anyhow!(Interrupted)),
-        _ = term.recv() => Err(anyhow!(Interrupted)),
         _ = cancel.wait_for(|c| *c) => Err(anyhow!(Interrupted)),
     };
     if let Err(e) = &r {

@@ -35,11 +35,11 @@ use tokio::io::{AsyncBufReadExt, AsyncReadExt, AsyncWriteExt, BufReader};
 use tokio::net::{UnixListener, UnixStream};
 use tokio::sync::{mpsc, watch};
 
-use crate::capture::{self, CaptureRequest, Interrupted};
+use crate::capture::{self, CaptureRequest};
 use crate::progress::{Event, Mode, Reporter};
 
 /// Exit code of a capture refused because another is running.
-pub const BUSY: i32 = 75;
+pub const BUSY: i32 = crate::exit::BUSY;
 
 /// A request to the daemon.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -118,17 +118,16 @@ fn bind(path: &Path) -> Result<UnixListener> {
     Ok(l)
 }
 
-/// Run the daemon until SIGTERM or Ctrl-C (a running job is interrupted
-/// first: LEDs off, gantry stopped, frames kept).
-pub async fn serve(socket: &Path) -> Result<()> {
+/// Run the daemon until `stop` turns true (the process's signal watcher:
+/// SIGTERM, Ctrl-C). A running job is interrupted first, whatever stage it
+/// is in: LEDs off, gantry stopped, frames kept, a resumable capture left.
+pub async fn serve(socket: &Path, mut stop: watch::Receiver<bool>) -> Result<()> {
     let listener = bind(socket)?;
     let job: Arc<Mutex<Option<Running>>> = Arc::new(Mutex::new(None));
     tracing::info!("daemon listening on {}", socket.display());
     sd_notify("READY=1\nSTATUS=idle");
     let watchdog = std::env::var("WATCHDOG_USEC").ok().and_then(|v| v.parse::<u64>().ok());
     let mut ping = tokio::time::interval(Duration::from_micros(watchdog.unwrap_or(10_000_000) / 2));
-    let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())
-        .context("cannot watch for SIGTERM")?;
     let result = loop {
         tokio::select! {
             a = listener.accept() => match a {
@@ -143,8 +142,7 @@ pub async fn serve(socket: &Path) -> Result<()> {
                 Err(e) => break Err(anyhow!("accept on {}: {e}", socket.display())),
             },
             _ = ping.tick() => if watchdog.is_some() { sd_notify("WATCHDOG=1") },
-            _ = term.recv() => break Ok(()),
-            _ = tokio::signal::ctrl_c() => break Ok(()),
+            _ = stop.wait_for(|s| *s) => break Ok(()),
         }
     };
     sd_notify("STOPPING=1");
@@ -230,7 +228,7 @@ async fn handle(stream: UnixStream, job: Arc<Mutex<Option<Running>>>) -> Result<
                     Ok(_) => 0,
                     Err(e) => {
                         rep.emit(Event::Error { message: format!("{e:#}") });
-                        exit_code(e)
+                        crate::exit::code(e)
                     }
                 };
                 *job2.lock().unwrap_or_else(|p| p.into_inner()) = None;
@@ -254,17 +252,6 @@ async fn handle(stream: UnixStream, job: Arc<Mutex<Option<Running>>>) -> Result<
         }
     }
     Ok(())
-}
-
-/// The exit code an error means.
-pub fn exit_code(e: &anyhow::Error) -> i32 {
-    if e.downcast_ref::<Interrupted>().is_some() {
-        crate::exit::INTERRUPTED
-    } else if e.downcast_ref::<crate::Usage>().is_some() {
-        crate::exit::USAGE
-    } else {
-        crate::exit::FAILED
-    }
 }
 
 /// A connection to a running daemon, if one answers.
@@ -293,9 +280,19 @@ fn absolute(mut req: CaptureRequest) -> Result<CaptureRequest> {
 }
 
 /// Run a capture through the daemon on `stream`, relaying its progress to
-/// `rep`; Ctrl-C asks the daemon to cancel. Returns the exit code.
-pub async fn capture_via(socket: &Path, stream: UnixStream, req: CaptureRequest, rep: &mut Reporter) -> Result<i32> {
+/// `rep`; a stop request (Ctrl-C) asks the daemon to cancel. Returns the
+/// exit code. A daemon that goes away mid-job leaves the capture to be
+/// resumed: the client marks it interrupted (once the daemon's lock on it
+/// is gone) and says how to continue.
+pub async fn capture_via(
+    socket: &Path,
+    stream: UnixStream,
+    req: CaptureRequest,
+    rep: &mut Reporter,
+    mut stop: watch::Receiver<bool>,
+) -> Result<i32> {
     let req = absolute(req)?;
+    let dir = req.out.clone().or(req.resume.clone());
     let (r, mut w) = stream.into_split();
     send_line(&mut w, &Request::Capture { request: req }).await?;
     let mut lines = BufReader::new(r).lines();
@@ -303,7 +300,10 @@ pub async fn capture_via(socket: &Path, stream: UnixStream, req: CaptureRequest,
     loop {
         tokio::select! {
             l = lines.next_line() => {
-                let Some(l) = l? else { bail!("the daemon on {} closed the connection", socket.display()) };
+                let l = match l {
+                    Ok(Some(l)) => l,
+                    Ok(None) | Err(_) => return Err(daemon_gone(socket, dir.as_deref())),
+                };
                 let v: serde_json::Value = serde_json::from_str(&l).context("bad line from the daemon")?;
                 if let Some(code) = v.get("exit").and_then(|c| c.as_i64()) {
                     return Ok(code as i32);
@@ -313,7 +313,7 @@ pub async fn capture_via(socket: &Path, stream: UnixStream, req: CaptureRequest,
                     Err(e) => tracing::warn!(error = %e, "unknown event from the daemon"),
                 }
             }
-            _ = tokio::signal::ctrl_c(), if !cancelled => {
+            _ = stop.wait_for(|s| *s), if !cancelled => {
                 cancelled = true;
                 rep.warn("asking the daemon to stop the capture");
                 let mut s = UnixStream::connect(socket).await?;
@@ -321,6 +321,28 @@ pub async fn capture_via(socket: &Path, stream: UnixStream, req: CaptureRequest,
             }
         }
     }
+}
+
+/// The daemon closed the connection without an exit line: it died. Mark
+/// the capture interrupted if it had started one (its lock died with it)
+/// and say how to continue.
+fn daemon_gone(socket: &Path, dir: Option<&Path>) -> anyhow::Error {
+    let Some(dir) = dir.filter(|d| d.join(store::CaptureDir::INFO).exists()) else {
+        return anyhow!("the daemon on {} closed the connection before the capture started", socket.display());
+    };
+    let marked = match store::CaptureDir::read_info(dir) {
+        Ok(info) if info.status == store::CaptureStatus::InProgress => {
+            store::CaptureDir::set_status_of(dir, store::CaptureStatus::Interrupted).is_ok()
+        }
+        _ => false,
+    };
+    tracing::debug!(marked, "capture status after the daemon went away");
+    anyhow!(
+        "the daemon on {} went away during the capture; everything stored so far is kept: restart the daemon \
+         (`systemctl restart reflectometer`) or run without it, then continue with `capture --resume {}`",
+        socket.display(),
+        dir.display()
+    )
 }
 
 /// Send `status` or `cancel` and return the daemon's answer.

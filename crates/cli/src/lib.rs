@@ -20,14 +20,58 @@ pub mod rigfile;
 pub mod session;
 pub mod tradeoff;
 
-/// Exit codes of the binaries.
+/// Exit codes of the binaries, and the one place that maps an error to its
+/// code (both binaries and the daemon use [`exit::code`]).
 pub mod exit {
-    /// Bad input: arguments, rig file, an occupied output directory.
+    /// Bad input: arguments, rig file, an occupied output directory, a
+    /// file or directory that is not what the command reads.
     pub const USAGE: i32 = 2;
-    /// A device or the capture failed.
+    /// A device, the disk or the capture failed.
     pub const FAILED: i32 = 1;
-    /// Interrupted by the operator (Ctrl-C, SIGTERM).
+    /// The daemon is running another capture.
+    pub const BUSY: i32 = 75;
+    /// Interrupted by the operator (Ctrl-C, SIGTERM, `refl daemon --cancel`).
     pub const INTERRUPTED: i32 = 130;
+
+    /// The exit code an error means: [`INTERRUPTED`] for an operator's
+    /// stop, [`USAGE`] for input that cannot be used as given (nothing was
+    /// touched), [`FAILED`] for the rest.
+    pub fn code(e: &anyhow::Error) -> i32 {
+        use material::MaterialError as M;
+        use store::StoreError as S;
+        for cause in e.chain() {
+            if cause.is::<crate::capture::Interrupted>() {
+                return INTERRUPTED;
+            }
+            if cause.is::<crate::Usage>()
+                || cause.is::<material::rgl::RglError>()
+                || cause.is::<material::merl::MerlError>()
+            {
+                return USAGE;
+            }
+            let bad_material = cause.downcast_ref::<M>().is_some_and(|m| {
+                matches!(
+                    m,
+                    M::NotAMaterial(_) | M::Occupied { .. } | M::Exists(_) | M::Malformed { .. } | M::Version { .. }
+                )
+            });
+            let bad_capture = cause.downcast_ref::<S>().is_some_and(|s| {
+                matches!(
+                    s,
+                    S::NotACapture(_)
+                        | S::NotEmpty(_)
+                        | S::AnotherCapture { .. }
+                        | S::BadCaptureJson { .. }
+                        | S::Version { .. }
+                        | S::Locked { .. }
+                )
+            });
+            if bad_material || bad_capture {
+                return USAGE;
+            }
+        }
+        FAILED
+    }
 }
 
 /// A request that cannot be carried out as given (bad arguments, an
@@ -49,10 +93,50 @@ pub fn usage(e: anyhow::Error) -> anyhow::Error {
     anyhow::Error::new(Usage(format!("{e:#}")))
 }
 
-/// Install the log subscriber: `RUST_LOG` filters, `info` by default, to stderr.
+/// The process's one watcher of stop signals (SIGINT, SIGTERM, SIGHUP),
+/// shared by the capture, the fit, the renders and the daemon: the
+/// returned receiver turns true at the first signal and every stage polls
+/// or awaits it. A second signal while the first is being honoured ends
+/// the process at once with [`exit::INTERRUPTED`] (what is stored stays
+/// stored: frames and materials are written atomically). Call inside the
+/// runtime.
+pub fn stop_on_signals() -> anyhow::Result<tokio::sync::watch::Receiver<bool>> {
+    use tokio::signal::unix::{SignalKind, signal};
+    let (tx, rx) = tokio::sync::watch::channel(false);
+    let mut int = signal(SignalKind::interrupt())?;
+    let mut term = signal(SignalKind::terminate())?;
+    let mut hup = signal(SignalKind::hangup())?;
+    tokio::spawn(async move {
+        let mut seen = 0;
+        loop {
+            let name = tokio::select! {
+                _ = int.recv() => "SIGINT",
+                _ = term.recv() => "SIGTERM",
+                _ = hup.recv() => "SIGHUP",
+            };
+            seen += 1;
+            if seen > 1 {
+                eprintln!("{name} again: stopping now");
+                std::process::exit(exit::INTERRUPTED);
+            }
+            tracing::info!("{name}: stopping (send it again to stop at once)");
+            let _ = tx.send(true);
+        }
+    });
+    Ok(rx)
+}
+
+/// Install the log subscriber: `RUST_LOG` filters, `info` by default, to
+/// stderr; colour only when stderr is a terminal (a log written to a file
+/// or a pipe carries no escape codes).
 pub fn init_logging() {
+    use std::io::IsTerminal;
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
-    let _ =
-        tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).with_target(false).try_init();
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_ansi(std::io::stderr().is_terminal())
+        .with_target(false)
+        .try_init();
 }

@@ -8,6 +8,9 @@ use anyhow::{Context, Result};
 use material::{Material, NdfKind};
 use store::CaptureInfo;
 
+use tokio::sync::watch;
+
+use crate::capture::Interrupted;
 use crate::fitjob::{FitJob, FitOutcome, Stages};
 use crate::presets::Overrides;
 use crate::presets::Quality;
@@ -78,7 +81,42 @@ pub fn material_from(out: &FitOutcome, info: &CaptureInfo, q: &Quality) -> Mater
     }
 }
 
+/// Was `e` caused by a full disk?
+pub fn is_disk_full(e: &anyhow::Error) -> bool {
+    e.chain().any(|c| {
+        c.downcast_ref::<std::io::Error>().is_some_and(|io| io.raw_os_error() == Some(libc::ENOSPC))
+            || matches!(c.downcast_ref::<store::StoreError>(), Some(store::StoreError::DiskFull { .. }))
+            || matches!(
+                c.downcast_ref::<material::MaterialError>(),
+                Some(material::MaterialError::Io { source, .. }) if source.raw_os_error() == Some(libc::ENOSPC)
+            )
+    })
+}
+
+/// The same advice a full disk gets during frames, for the fit's outputs:
+/// every frame is stored, so nothing is lost and the fit can be run again.
+fn disk_full_advice(e: anyhow::Error, root: &Path) -> anyhow::Error {
+    if is_disk_full(&e) {
+        e.context(format!(
+            "the disk holding {0} is full; free some space, then continue with `capture --resume {0}` or \
+             `refl fit {0}` (every frame is stored; nothing is lost)",
+            root.display()
+        ))
+    } else {
+        e
+    }
+}
+
+/// A stop request (Ctrl-C, SIGTERM, a cancelled daemon job) as a closure
+/// the blocking stages poll.
+pub fn stop_requested(stop: &watch::Receiver<bool>) -> impl Fn() -> bool + '_ {
+    move || *stop.borrow()
+}
+
 /// Wait for the fitter, then write the material and its preview renders.
+/// A stop request ends the wait at once (the fitter thread gives up at its
+/// next stage) and is returned as [`Interrupted`]; nothing half-written is
+/// left (the material is written atomically).
 pub async fn finish_fit(
     job: FitJob,
     info: &CaptureInfo,
@@ -86,14 +124,40 @@ pub async fn finish_fit(
     root: &Path,
     rep: &mut Reporter,
     report: &mut Report,
+    stop: &watch::Receiver<bool>,
+) -> Result<PathBuf> {
+    let r = fit_and_write(job, info, q, root, rep, report, stop).await;
+    r.map_err(|e| disk_full_advice(e, root))
+}
+
+async fn fit_and_write(
+    job: FitJob,
+    info: &CaptureInfo,
+    q: &Quality,
+    root: &Path,
+    rep: &mut Reporter,
+    report: &mut Report,
+    stop: &watch::Receiver<bool>,
 ) -> Result<PathBuf> {
     rep.stage("fit", "per-point NDFs (diffuse, specular, masking, Fresnel)");
     let t = Instant::now();
-    let out = tokio::task::block_in_place(|| job.finish())?;
+    let mut watch_stop = stop.clone();
+    let out = tokio::select! {
+        r = job.finish_async() => r?,
+        _ = watch_stop.wait_for(|s| *s) => return Err(Interrupted.into()),
+    };
     rep.stage("fit", format!("{} points in {:.1} s after the last frame", out.maps.len(), out.timings.points_s));
-    let m = std::sync::Arc::new(material_from(&out, info, q));
+    let mut m = material_from(&out, info, q);
+    if let (Some(p), Some(prov)) = (&report.partial, m.provenance.as_object_mut()) {
+        prov.insert("partial_capture".into(), p.clone());
+    }
+    let m = std::sync::Arc::new(m);
     let dir = root.join("material");
-    tokio::task::block_in_place(|| material::write(&dir, &m)).with_context(|| format!("writing {}", dir.display()))?;
+    if *stop.borrow() {
+        return Err(Interrupted.into());
+    }
+    tokio::task::block_in_place(|| material::write(&dir, &m, material::WriteMode::Replace))
+        .with_context(|| format!("writing {}", dir.display()))?;
     report.time("fit_ingest_s", out.timings.ingest_s);
     report.time("fit_points_s", out.timings.points_s);
     report.time("fit_synthesis_s", out.timings.synthesis_s);
@@ -146,7 +210,10 @@ pub async fn finish_fit(
     });
     rep.stage("fit", format!("material written to {}", dir.display()));
     let t = Instant::now();
-    let files = tokio::task::block_in_place(|| write_renders(root, m, info, rep))?;
+    let files = tokio::task::block_in_place(|| write_renders(root, m, info, rep, &stop_requested(stop)))?;
+    if *stop.borrow() {
+        return Err(Interrupted.into());
+    }
     report.time("renders_s", t.elapsed().as_secs_f64());
     rep.stage(
         "render",
@@ -165,9 +232,10 @@ fn write_renders(
     m: std::sync::Arc<Material>,
     info: &CaptureInfo,
     rep: &mut Reporter,
+    stop: &dyn Fn() -> bool,
 ) -> Result<Vec<PathBuf>> {
     let truth = crate::capture::ground_truth(info)?;
-    crate::renders::write_previews(&root.join("renders"), m, truth, PREVIEW_PX, rep)
+    crate::renders::write_previews(&root.join("renders"), m, truth, PREVIEW_PX, rep, stop)
 }
 
 pub fn write_report(root: &Path, report: &Report) -> Result<()> {
@@ -181,11 +249,44 @@ pub fn write_report(root: &Path, report: &Report) -> Result<()> {
 
 /// `refl fit DIR`: refit a stored capture (replaying its frames through the
 /// same streaming fitter), writing `material/` and updating `report.json`.
-pub async fn refit(dir: &Path, q_override: Option<Quality>, rep: &mut Reporter) -> Result<PathBuf> {
+/// A capture missing planned shots is refused unless `partial`; its
+/// material is then marked partial in its provenance.
+pub async fn refit(
+    dir: &Path,
+    q_override: Option<Quality>,
+    partial: bool,
+    rep: &mut Reporter,
+    stop: &watch::Receiver<bool>,
+) -> Result<PathBuf> {
     let info = store::CaptureDir::read_info(dir)?;
+    let lock = store::DirLock::acquire(dir)?;
     let (entries, torn) = store::CaptureDir::read_manifest(dir)?;
     if torn {
         rep.warn("the manifest's last line is torn (the capture was interrupted); fitting what is complete");
+    }
+    let planned = info.plan.shots().len();
+    let stored: std::collections::HashSet<u32> = entries
+        .iter()
+        .filter_map(|e| match e.frame {
+            store::FrameKind::Shot { index, .. } => Some(index),
+            store::FrameKind::Dark { .. } => None,
+        })
+        .collect();
+    let missing = planned.saturating_sub(stored.len());
+    if missing > 0 {
+        let what = format!(
+            "{} holds {} of its {planned} planned shots ({:.0}%)",
+            dir.display(),
+            stored.len(),
+            100.0 * stored.len() as f64 / planned.max(1) as f64
+        );
+        if !partial {
+            return Err(crate::usage(anyhow::anyhow!(
+                "{what}: finish it with `capture --resume {}`, or fit what is there with `refl fit --partial`",
+                dir.display()
+            )));
+        }
+        rep.warn(format!("{what}; fitting a partial material (--partial)"));
     }
     let q: Quality = match q_override {
         Some(q) => q,
@@ -194,12 +295,37 @@ pub async fn refit(dir: &Path, q_override: Option<Quality>, rep: &mut Reporter) 
     let inputs = crate::fitjob::fit_inputs(&info);
     let job = FitJob::start(inputs, q.fit.clone(), stages(&q, &Overrides::default()));
     let t = Instant::now();
-    let n = tokio::task::block_in_place(|| crate::fitjob::replay(dir, &entries, &job))?;
+    let n = tokio::task::block_in_place(|| crate::fitjob::replay(dir, &entries, &job, &stop_requested(stop)))?;
     rep.stage("fit", format!("{n} stored frames read in {:.1} s", t.elapsed().as_secs_f64()));
     let mut report = Report { sample: info.sample.clone(), quality: q.name.clone(), ..Report::default() };
-    let m = finish_fit(job, &info, &q, dir, rep, &mut report).await?;
+    let mut info = info;
+    if missing > 0 {
+        info.status = store::CaptureStatus::Interrupted;
+        report.partial = Some(serde_json::json!({ "planned_shots": planned, "stored_shots": stored.len() }));
+    }
+    let m = finish_fit(job, &info, &q, dir, rep, &mut report, stop).await?;
     report.peak_memory_mb = crate::report::peak_memory_mb();
     report.material = Some(m.display().to_string());
-    write_report(dir, &report)?;
+    write_report(dir, &report).map_err(|e| disk_full_advice(e, dir))?;
+    drop(lock);
     Ok(m)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A real ENOSPC (writing to /dev/full) while writing the fit's outputs
+    /// gets the same advice as during frames: what to free, how to go on,
+    /// that nothing is lost.
+    #[test]
+    fn a_full_disk_during_the_fit_says_how_to_continue() {
+        let enospc = std::fs::write("/dev/full", b"maps").expect_err("/dev/full accepts nothing");
+        let e = disk_full_advice(anyhow::Error::new(enospc).context("writing /x/material"), Path::new("/x"));
+        let msg = format!("{e:#}");
+        assert!(msg.contains("full") && msg.contains("capture --resume /x") && msg.contains("refl fit /x"), "{msg}");
+        assert!(msg.contains("nothing is lost"), "{msg}");
+        let other = disk_full_advice(anyhow::anyhow!("the fitter thread panicked"), Path::new("/x"));
+        assert!(!format!("{other:#}").contains("--resume"));
+    }
 }

@@ -4,17 +4,45 @@ use std::path::PathBuf;
 use std::time::{SystemTime, UNIX_EPOCH};
 
 /// Data directory: `$REFLECTOMETER_DATA`, else `$XDG_DATA_HOME/reflectometer`,
-/// else `~/.local/share/reflectometer`.
-pub fn data_dir() -> PathBuf {
+/// else `$HOME/.local/share/reflectometer`, with `HOME` from the password
+/// database when the environment lacks it (as under some service
+/// managers). Relative `XDG_DATA_HOME` and `HOME` are ignored, as the XDG
+/// specification says; with no absolute home at all it is an error, never
+/// a directory relative to wherever the command was started.
+pub fn data_dir() -> anyhow::Result<PathBuf> {
     if let Some(d) = std::env::var_os("REFLECTOMETER_DATA") {
-        return PathBuf::from(d);
+        return Ok(PathBuf::from(d));
     }
-    if let Some(d) = std::env::var_os("XDG_DATA_HOME") {
-        return PathBuf::from(d).join("reflectometer");
+    let absolute = |v: Option<std::ffi::OsString>| v.map(PathBuf::from).filter(|p| p.is_absolute());
+    if let Some(d) = absolute(std::env::var_os("XDG_DATA_HOME")) {
+        return Ok(d.join("reflectometer"));
     }
-    match std::env::var_os("HOME") {
-        Some(h) => PathBuf::from(h).join(".local/share/reflectometer"),
-        None => PathBuf::from(".reflectometer"),
+    match absolute(std::env::var_os("HOME")).or_else(home_from_passwd) {
+        Some(h) => Ok(h.join(".local/share/reflectometer")),
+        None => Err(crate::usage(anyhow::anyhow!(
+            "no home directory to keep calibrations in (HOME is unset or relative, and the password database has \
+             none for this user): set REFLECTOMETER_DATA, XDG_DATA_HOME or HOME to an absolute path, or pass \
+             --calib-dir"
+        ))),
+    }
+}
+
+/// This user's home directory from the password database.
+fn home_from_passwd() -> Option<PathBuf> {
+    use std::ffi::CStr;
+    use std::os::unix::ffi::OsStrExt;
+    let mut buf = vec![0 as libc::c_char; 16 * 1024];
+    // SAFETY: passwd is plain old data; getpwuid_r writes into `pw` and
+    // `buf` (whose length we pass) and sets `out` to `&pw` on success.
+    unsafe {
+        let mut pw: libc::passwd = std::mem::zeroed();
+        let mut out: *mut libc::passwd = std::ptr::null_mut();
+        let rc = libc::getpwuid_r(libc::getuid(), &mut pw, buf.as_mut_ptr(), buf.len(), &mut out);
+        if rc != 0 || out.is_null() || pw.pw_dir.is_null() {
+            return None;
+        }
+        let dir = std::ffi::OsStr::from_bytes(CStr::from_ptr(pw.pw_dir).to_bytes());
+        Some(PathBuf::from(dir)).filter(|p| p.is_absolute())
     }
 }
 

@@ -117,13 +117,15 @@ pub fn sheet_models(m: &Material) -> Vec<(String, ModelChoice)> {
 }
 
 /// Write `renders/`: one sheet per preview view (PNG) with every panel
-/// also as EXR, and the model-choice map. Returns the files written.
+/// also as EXR, and the model-choice map. Returns the files written (only
+/// those finished before `stop()` turned true).
 pub fn write_previews(
     out: &Path,
     m: Arc<Material>,
     truth: Option<Arc<dyn SvBrdf>>,
     px: u32,
     rep: &mut Reporter,
+    stop: &dyn Fn() -> bool,
 ) -> Result<Vec<PathBuf>> {
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
     let sample = m.sample;
@@ -138,8 +140,14 @@ pub fn write_previews(
     let mut written = Vec::new();
     for (view_name, scene) in preview_views(px) {
         rep.stage("render", format!("{view_name}: {} panels", panels_src.len()));
-        let images: Vec<Image> =
-            panels_src.iter().map(|(_, b)| render::render(b.as_ref(), &sample, &scene, 11)).collect();
+        let mut images: Vec<Image> = Vec::with_capacity(panels_src.len());
+        for (_, b) in &panels_src {
+            // A stop request is honoured between panels (each takes well under a second).
+            if stop() {
+                return Ok(written);
+            }
+            images.push(render::render(b.as_ref(), &sample, &scene, 11));
+        }
         for ((label, _), img) in panels_src.iter().zip(&images) {
             let p = out.join(format!("{view_name}-{label}.exr"));
             render::output::write_exr(&p, img)?;

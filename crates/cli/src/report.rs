@@ -17,6 +17,10 @@ pub struct Report {
     pub fit: serde_json::Value,
     pub material: Option<String>,
     pub peak_memory_mb: Option<f64>,
+    /// Set when the material was fitted from an incomplete capture
+    /// (`refl fit --partial`): planned and stored shots.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub partial: Option<serde_json::Value>,
 }
 
 impl Report {

@@ -105,10 +105,29 @@ impl RigFile {
         if r.kind == RigKind::Hardware && (r.serial.is_none() || r.camera.is_none()) {
             bail!("{source}: a hardware rig needs [serial] and [camera] sections (see RIGFILE.md)");
         }
-        if !(0.1..=1.0).contains(&r.white_reference_albedo) {
-            bail!("{source}: white_reference_albedo {} is not a plausible albedo", r.white_reference_albedo);
-        }
+        r.validate().map_err(|e| anyhow::anyhow!("{source}: {e} (see RIGFILE.md)"))?;
         Ok(r)
+    }
+
+    /// Check every field against the ranges a rig can have.
+    pub fn validate(&self) -> Result<(), setup::Invalid> {
+        use setup::valid::{above, count, within};
+        within("white_reference_albedo", self.white_reference_albedo, 0.1, 1.0)?;
+        count("led_current_ma", self.led_current_ma as u64, 1, 10_000)?;
+        if let Some(g) = &self.geometry {
+            g.validate()?;
+        }
+        if let Some(c) = &self.camera {
+            above("camera.e_per_dn", c.e_per_dn, 0.0, 1e6)?;
+            above("camera.fps", c.fps, 0.0, 10_000.0)?;
+            count("camera.buffers", c.buffers as u64, 2, 32)?;
+        }
+        if let Some(s) = &self.serial {
+            count("serial.baud", s.baud as u64, 300, 100_000_000)?;
+        }
+        above("sim.fps", self.sim.fps, 0.0, 10_000.0)?;
+        within("sim.time_scale", self.sim.time_scale, 0.0, 100.0)?;
+        Ok(())
     }
 
     /// `--rig FILE`, else the system-wide file, else the embedded default.
@@ -144,5 +163,36 @@ mod tests {
         assert!(format!("{e:#}").contains("x.toml"));
         let hw = "name='a'\nkind='hardware'\nwhite_reference_albedo=0.99\nled_current_ma=200\n";
         assert!(format!("{:#}", RigFile::parse(hw, "hw.toml").unwrap_err()).contains("[serial]"));
+    }
+
+    /// Every impossible value the issue found accepted is refused, naming
+    /// the field and its range.
+    #[test]
+    fn impossible_rigs_are_refused_naming_the_field() {
+        let base = "name='s'\nkind='sim'\nwhite_reference_albedo=0.95\nled_current_ma=200\n";
+        let cases = [
+            ("[sim]\ntime_scale = nan\n", "sim.time_scale"),
+            ("[sim]\nfps = -30.0\n", "sim.fps"),
+            ("[sim]\nfps = 0.0\n", "sim.fps"),
+        ];
+        for (extra, field) in cases {
+            let e = format!("{:#}", RigFile::parse(&format!("{base}{extra}"), "r.toml").unwrap_err());
+            assert!(e.contains(field) && e.contains("must be") && e.contains("r.toml"), "{extra}: {e}");
+        }
+        let geometry = toml::to_string(&RigFile {
+            geometry: Some(RigGeometry::default()),
+            ..RigFile::parse(DEFAULT_RIG, "default").unwrap()
+        })
+        .unwrap();
+        for (from, to, field) in [
+            ("fov_y_deg = 15.0", "fov_y_deg = nan", "geometry.camera.fov_y_deg"),
+            ("height_mm = 40.0", "height_mm = -40.0", "geometry.bar.height_mm"),
+            ("width_mm = 100.0", "width_mm = -100.0", "geometry.sample.width_mm"),
+            ("speed_mm_s = 100.0", "speed_mm_s = 0.0", "geometry.gantry.speed_mm_s"),
+        ] {
+            assert!(geometry.contains(from), "{from} not in {geometry}");
+            let e = format!("{:#}", RigFile::parse(&geometry.replacen(from, to, 1), "r.toml").unwrap_err());
+            assert!(e.contains(field), "{to}: {e}");
+        }
     }
 }

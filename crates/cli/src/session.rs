@@ -106,6 +106,14 @@ impl Camera for RigCamera {
             RigCamera::V4l2(c) => c.frame_after(after, timeout).await,
         }
     }
+
+    async fn discards(&mut self) -> rig::camera::Discards {
+        match self {
+            RigCamera::Sim(c) => c.discards().await,
+            #[cfg(target_os = "linux")]
+            RigCamera::V4l2(c) => c.discards().await,
+        }
+    }
 }
 
 /// The emulated MCU's configuration for a rig geometry and time scale.
@@ -150,6 +158,7 @@ pub async fn open_sim(
     let scale = if rf.sim.realtime { 1.0 } else { rf.sim.time_scale.max(0.0) as f64 };
     let dir = paths::runtime_dir();
     std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    remove_stale_links(&dir);
     static COUNTER: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
     let n = COUNTER.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
     let link = dir.join(format!("sim-mcu-{}-{n}", std::process::id()));
@@ -178,8 +187,10 @@ pub async fn open_sim(
     let camera = tokio::task::block_in_place(|| SimCamera::new(cfg, material, world));
     let mut settings = rig_settings(geometry, scale, rf.led_current_ma);
     if !rf.sim.realtime {
-        // A pseudo-terminal answers in about 0.1 ms.
-        settings.reply_timeout = Duration::from_millis(10);
+        // Motion is sped up by the time scale, so a late `MoveDone` is
+        // checked for sooner. The reply timeout is the protocol's
+        // (`REPLY_TIMEOUT_MS`), as on hardware: the emulator must answer
+        // within it like a real controller.
         settings.move_done_slack = Duration::from_millis(50);
     }
     let connector = SerialConnector {
@@ -188,6 +199,24 @@ pub async fn open_sim(
     };
     let rig = Rig::open(connector, settings).await.context("cannot talk to the simulated rig")?;
     Ok(Session { rig, camera: RigCamera::Sim(camera), e_per_dn, fps: rf.sim.fps, mcu: Some(mcu) })
+}
+
+/// Remove `sim-mcu-PID-N` links left in `dir` by processes that no longer
+/// exist (killed with SIGKILL, or by a signal they did not handle).
+fn remove_stale_links(dir: &std::path::Path) {
+    let Ok(rd) = std::fs::read_dir(dir) else { return };
+    for e in rd.flatten() {
+        let name = e.file_name().to_string_lossy().into_owned();
+        let Some(pid) = name.strip_prefix("sim-mcu-").and_then(|r| r.split('-').next()?.parse::<i32>().ok()) else {
+            continue;
+        };
+        // SAFETY: kill with signal 0 only checks that the process exists.
+        let gone = unsafe { libc::kill(pid, 0) } != 0 && std::io::Error::last_os_error().raw_os_error() == Some(libc::ESRCH);
+        if gone && e.file_type().is_ok_and(|t| t.is_symlink()) {
+            tracing::debug!(link = %e.path().display(), "removing a stale emulator link");
+            let _ = std::fs::remove_file(e.path());
+        }
+    }
 }
 
 /// Open the hardware the rig file names: the microcontroller on its serial

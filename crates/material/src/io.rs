@@ -24,6 +24,10 @@ pub const MATERIAL_FORMAT_VERSION: u32 = 1;
 pub enum MaterialError {
     #[error("{0} is not a material directory (no material.json)")]
     NotAMaterial(String),
+    #[error("{path} cannot take a material: {reason}; nothing was changed")]
+    Occupied { path: String, reason: String },
+    #[error("{0} already holds a material; choose another directory, or replace it explicitly")]
+    Exists(String),
     #[error("{path}: {reason}")]
     Malformed { path: String, reason: String },
     #[error("{path} is material format version {found}; this program reads version {MATERIAL_FORMAT_VERSION}")]
@@ -176,33 +180,134 @@ fn read_tables(path: &Path, grid: NdfGrid, n: usize) -> Result<TableSet, Materia
     TableSet::from_raw(grid, n, values, coverage).ok_or_else(|| malformed(path, "inconsistent table sizes"))
 }
 
-/// Write a material directory atomically: everything goes into a temporary
-/// sibling directory which then replaces `dir`.
-pub fn write(dir: &Path, m: &Material) -> Result<(), MaterialError> {
+/// What [`write`] may do to a directory that already exists.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum WriteMode {
+    /// Only a new or empty directory is written; an existing material is
+    /// refused.
+    New,
+    /// An existing material is replaced (atomically); anything that is not
+    /// a material, or a material holding files the format does not write,
+    /// is still refused.
+    Replace,
+}
+
+/// Is `name` a file a material directory holds (one [`write`] makes)?
+fn is_material_file(name: &str) -> bool {
+    matches!(name, "material.json" | "maps.exr" | "ndf.exr" | "ndf_partial.exr")
+        || (name.starts_with("model_") && name.ends_with(".exr"))
+}
+
+/// Check what is at `dir` before writing a material there: nothing, an
+/// empty directory, or (with [`WriteMode::Replace`]) a material holding
+/// only the format's files. Returns whether a material is to be replaced.
+fn check_target(dir: &Path, mode: WriteMode) -> Result<bool, MaterialError> {
+    let meta = match fs::symlink_metadata(dir) {
+        Ok(m) => m,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(false),
+        Err(e) => return Err(io(dir, e)),
+    };
+    let shown = dir.display().to_string();
+    if !meta.is_dir() {
+        return Err(MaterialError::Occupied { path: shown, reason: "it is a file, not a directory".into() });
+    }
+    let names: Vec<String> = fs::read_dir(dir)
+        .map_err(|e| io(dir, e))?
+        .map(|e| e.map(|e| e.file_name().to_string_lossy().into_owned()))
+        .collect::<Result<_, _>>()
+        .map_err(|e| io(dir, e))?;
+    if names.is_empty() {
+        return Ok(false);
+    }
+    if !names.iter().any(|n| n == "material.json") {
+        return Err(MaterialError::Occupied {
+            path: shown,
+            reason: format!("it holds {} entries and is not a material (no material.json)", names.len()),
+        });
+    }
+    if mode == WriteMode::New {
+        return Err(MaterialError::Exists(shown));
+    }
+    if let Some(foreign) = names.iter().find(|n| !is_material_file(n)) {
+        return Err(MaterialError::Occupied {
+            path: shown,
+            reason: format!("it holds '{foreign}', which a material does not; move it elsewhere first"),
+        });
+    }
+    Ok(true)
+}
+
+/// Write a material directory. Everything goes into a new temporary
+/// sibling directory first, which then takes `dir`'s place; nothing at
+/// `dir` is touched unless the whole material was written. A directory
+/// that is not empty is refused unless it is a material and `mode` is
+/// [`WriteMode::Replace`]; then only the format's own files are removed.
+pub fn write(dir: &Path, m: &Material, mode: WriteMode) -> Result<(), MaterialError> {
     let n = m.n_points();
     for (what, len) in [("kd", m.kd.len()), ("ks", m.ks.len()), ("eta", m.eta.len()), ("flags", m.flags.len())] {
         if len != n {
             return Err(malformed(dir, format!("{what} has {len} points, the grid has {n}")));
         }
     }
+    let replacing = check_target(dir, mode)?;
     let parent = dir.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
     fs::create_dir_all(parent).map_err(|e| io(parent, e))?;
     let name = dir.file_name().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "material".into());
-    let tmp = parent.join(format!(".{name}.tmp-{}", std::process::id()));
-    let _ = fs::remove_dir_all(&tmp);
-    fs::create_dir_all(&tmp).map_err(|e| io(&tmp, e))?;
-    let result = write_into(&tmp, m);
-    if let Err(e) = result {
-        let _ = fs::remove_dir_all(&tmp);
+    let tmp = unique_sibling(parent, &name, "tmp")?;
+    if let Err(e) = write_into(&tmp, m) {
+        remove_material_files(&tmp);
         return Err(e);
     }
-    let old = parent.join(format!(".{name}.old-{}", std::process::id()));
-    if dir.exists() {
-        fs::rename(dir, &old).map_err(|e| io(dir, e))?;
+    if replacing {
+        let old = unique_sibling(parent, &name, "old")?;
+        // `old` was just made empty; renaming a directory onto an empty one replaces it.
+        if let Err(e) = fs::rename(dir, &old) {
+            let _ = fs::remove_dir(&old);
+            remove_material_files(&tmp);
+            return Err(io(dir, e));
+        }
+        if let Err(e) = fs::rename(&tmp, dir) {
+            let _ = fs::rename(&old, dir);
+            remove_material_files(&tmp);
+            return Err(io(dir, e));
+        }
+        remove_material_files(&old);
+    } else {
+        // An empty directory at `dir` is replaced by the rename; a
+        // non-empty one (made since the check) makes it fail, untouched.
+        if let Err(e) = fs::rename(&tmp, dir) {
+            remove_material_files(&tmp);
+            return Err(io(dir, e));
+        }
     }
-    fs::rename(&tmp, dir).map_err(|e| io(dir, e))?;
-    let _ = fs::remove_dir_all(&old);
     Ok(())
+}
+
+/// Make a new, empty directory `parent/.NAME.WHAT-PID-K` (never an
+/// existing one).
+fn unique_sibling(parent: &Path, name: &str, what: &str) -> Result<PathBuf, MaterialError> {
+    for k in 0..1000 {
+        let p = parent.join(format!(".{name}.{what}-{}-{k}", std::process::id()));
+        match fs::create_dir(&p) {
+            Ok(()) => return Ok(p),
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => continue,
+            Err(e) => return Err(io(&p, e)),
+        }
+    }
+    Err(io(parent, std::io::Error::other("no free name for a temporary directory")))
+}
+
+/// Remove a directory [`write`] made or replaced: only the format's files,
+/// then the directory if that left it empty.
+fn remove_material_files(dir: &Path) {
+    if let Ok(rd) = fs::read_dir(dir) {
+        for e in rd.flatten() {
+            if is_material_file(&e.file_name().to_string_lossy()) {
+                let _ = fs::remove_file(e.path());
+            }
+        }
+    }
+    let _ = fs::remove_dir(dir);
 }
 
 fn write_into(dir: &Path, m: &Material) -> Result<(), MaterialError> {

@@ -6,7 +6,7 @@ use std::fs;
 
 use brdf::ndf::{Beckmann, NdfGrid, NdfTable, TableSet};
 use brdf::params::AnalyticModel;
-use material::{Choice, ChoiceMap, Material, MaterialError, ModelMap, NdfKind};
+use material::{Choice, ChoiceMap, Material, MaterialError, ModelMap, NdfKind, WriteMode};
 use setup::{PointGrid, SampleArea};
 
 fn sample_material() -> Material {
@@ -58,7 +58,7 @@ fn round_trip_is_exact_up_to_f16_tables() {
     let d = tempfile::tempdir().unwrap();
     let dir = d.path().join("material");
     let m = sample_material();
-    material::write(&dir, &m).unwrap();
+    material::write(&dir, &m, WriteMode::New).unwrap();
     let back = material::read(&dir).unwrap();
     assert_eq!(back.kd, m.kd);
     assert_eq!(back.ks, m.ks);
@@ -67,8 +67,10 @@ fn round_trip_is_exact_up_to_f16_tables() {
     assert_eq!(back.choice, m.choice);
     assert_eq!(back.ndf, m.ndf, "tables are stored as f16 and must read back bit-exact");
     assert_eq!(back.ndf_kind, NdfKind::Synthesized);
-    // Writing again replaces the directory atomically.
-    material::write(&dir, &back).unwrap();
+    // Writing again replaces the directory atomically, when asked to.
+    let e = material::write(&dir, &back, WriteMode::New).unwrap_err();
+    assert!(matches!(e, MaterialError::Exists(_)), "{e}");
+    material::write(&dir, &back, WriteMode::Replace).unwrap();
     assert!(material::read(&dir).is_ok());
     let leftovers: Vec<_> = fs::read_dir(d.path()).unwrap().flatten().filter(|e| e.file_name() != "material").collect();
     assert!(leftovers.is_empty(), "temporary directories left behind");
@@ -79,7 +81,7 @@ fn malformed_materials_are_rejected_with_a_reason() {
     let d = tempfile::tempdir().unwrap();
     let dir = d.path().join("material");
     assert!(matches!(material::read(&dir), Err(MaterialError::NotAMaterial(_))));
-    material::write(&dir, &sample_material()).unwrap();
+    material::write(&dir, &sample_material(), WriteMode::New).unwrap();
     // Inconsistent grid in the JSON.
     let j = fs::read_to_string(dir.join("material.json")).unwrap();
     fs::write(dir.join("material.json"), j.replace("\"cols\": 4", "\"cols\": 5")).unwrap();
@@ -94,4 +96,57 @@ fn malformed_materials_are_rejected_with_a_reason() {
     // A future version.
     fs::write(dir.join("material.json"), j.replace("\"format_version\": 1", "\"format_version\": 9")).unwrap();
     assert!(matches!(material::read(&dir), Err(MaterialError::Version { found: 9, .. })));
+}
+
+/// Every entry under `dir` with its bytes, to show that nothing changed.
+fn snapshot(dir: &std::path::Path) -> Vec<(std::path::PathBuf, Vec<u8>)> {
+    let mut out = Vec::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for e in fs::read_dir(&d).unwrap().flatten() {
+            let p = e.path();
+            if p.is_dir() {
+                stack.push(p.clone());
+                out.push((p, Vec::new()));
+            } else {
+                out.push((p.clone(), fs::read(&p).unwrap()));
+            }
+        }
+    }
+    out.sort();
+    out
+}
+
+#[test]
+fn writing_never_removes_what_it_did_not_write() {
+    let d = tempfile::tempdir().unwrap();
+    let m = sample_material();
+    // A directory of someone's files (a capture, notes): refused in either
+    // mode, every file left as it was.
+    let busy = d.path().join("capture");
+    fs::create_dir_all(busy.join("frames")).unwrap();
+    fs::write(busy.join("notes.txt"), "keep me").unwrap();
+    fs::write(busy.join("frames/s000.png"), [1u8, 2, 3]).unwrap();
+    let before = snapshot(d.path());
+    for mode in [WriteMode::New, WriteMode::Replace] {
+        let e = material::write(&busy, &m, mode).unwrap_err();
+        assert!(matches!(e, MaterialError::Occupied { .. }), "{e}");
+    }
+    assert_eq!(snapshot(d.path()), before, "a refused write changed something");
+    // A regular file at the target: refused, untouched.
+    let file = d.path().join("file");
+    fs::write(&file, "data").unwrap();
+    assert!(matches!(material::write(&file, &m, WriteMode::Replace), Err(MaterialError::Occupied { .. })));
+    assert_eq!(fs::read(&file).unwrap(), b"data");
+    // An empty directory takes a new material.
+    let empty = d.path().join("empty");
+    fs::create_dir(&empty).unwrap();
+    material::write(&empty, &m, WriteMode::New).unwrap();
+    assert!(material::read(&empty).is_ok());
+    // A material with a file the format does not write is not replaced.
+    fs::write(empty.join("README"), "mine").unwrap();
+    let before = snapshot(d.path());
+    let e = material::write(&empty, &m, WriteMode::Replace).unwrap_err();
+    assert!(e.to_string().contains("README"), "{e}");
+    assert_eq!(snapshot(d.path()), before);
 }

@@ -31,6 +31,11 @@ pub enum StoreError {
     DiskFull { dir: String },
     #[error("{what} {path}: {source}")]
     Io { what: &'static str, path: String, source: io::Error },
+    #[error(
+        "{dir} is in use by another process (a capture, a resume or a fit is writing it); wait for it to end, \
+         or stop it (Ctrl-C, `refl daemon --cancel`)"
+    )]
+    Locked { dir: String },
     #[error("frame {path} is damaged: {reason}")]
     BadFrame { path: String, reason: String },
 }
@@ -64,6 +69,27 @@ pub(crate) fn write_atomic(path: &Path, bytes: &[u8], dir: &Path) -> Result<(), 
     Ok(())
 }
 
+/// An exclusive advisory lock (`flock`) on a capture directory, held by
+/// whoever writes it (a capture, a resume, a refit) until dropped. The
+/// kernel releases it when the process ends, however it ends.
+#[derive(Debug)]
+pub struct DirLock {
+    _dir: File,
+}
+
+impl DirLock {
+    /// Take the lock on `root` without waiting: another writer means
+    /// [`StoreError::Locked`].
+    pub fn acquire(root: &Path) -> Result<Self, StoreError> {
+        let dir = File::open(root).map_err(|e| io_err("opening", root, e, root))?;
+        match dir.try_lock() {
+            Ok(()) => Ok(Self { _dir: dir }),
+            Err(fs::TryLockError::WouldBlock) => Err(StoreError::Locked { dir: root.display().to_string() }),
+            Err(fs::TryLockError::Error(e)) => Err(io_err("locking", root, e, root)),
+        }
+    }
+}
+
 /// What a resume found.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct ResumeState {
@@ -84,6 +110,7 @@ pub struct CaptureDir {
     info: CaptureInfo,
     manifest: File,
     entries: Vec<ManifestEntry>,
+    _lock: DirLock,
 }
 
 impl CaptureDir {
@@ -109,18 +136,18 @@ impl CaptureDir {
             }
         }
         fs::create_dir_all(root.join(Self::FRAMES)).map_err(|e| io_err("creating", root, e, root))?;
-        let bytes = serde_json::to_vec_pretty(&info).map_err(|e| StoreError::Io {
-            what: "encoding",
-            path: Self::INFO.into(),
-            source: io::Error::other(e),
-        })?;
-        write_atomic(&root.join(Self::INFO), &bytes, root)?;
+        let lock = DirLock::acquire(root)?;
+        if root.join(Self::INFO).exists() {
+            // Another process created a capture here since the check above.
+            return Err(StoreError::Locked { dir: root.display().to_string() });
+        }
+        write_info(root, &info)?;
         let manifest = OpenOptions::new()
             .create(true)
             .append(true)
             .open(root.join(Self::MANIFEST))
             .map_err(|e| io_err("creating", &root.join(Self::MANIFEST), e, root))?;
-        Ok(Self { root: root.to_path_buf(), info, manifest, entries: Vec::new() })
+        Ok(Self { root: root.to_path_buf(), info, manifest, entries: Vec::new(), _lock: lock })
     }
 
     /// Read `capture.json` without opening the directory for writing.
@@ -175,6 +202,7 @@ impl CaptureDir {
     /// and rewrite the manifest with only the good entries.
     pub fn resume(root: &Path) -> Result<(Self, ResumeState), StoreError> {
         let info = Self::read_info(root)?;
+        let lock = DirLock::acquire(root)?;
         let (entries, torn_tail) = Self::read_manifest(root)?;
         let checks: Vec<(ManifestEntry, Result<(), String>)> = entries
             .into_par_iter()
@@ -223,7 +251,7 @@ impl CaptureDir {
             .append(true)
             .open(root.join(Self::MANIFEST))
             .map_err(|e| io_err("opening", &root.join(Self::MANIFEST), e, root))?;
-        Ok((Self { root: root.to_path_buf(), info, manifest, entries: good }, state))
+        Ok((Self { root: root.to_path_buf(), info, manifest, entries: good, _lock: lock }, state))
     }
 
     pub fn root(&self) -> &Path {
@@ -243,6 +271,15 @@ impl CaptureDir {
         self.rewrite_info()
     }
 
+    /// Set the status of a capture nobody has open (a refit, or a client
+    /// whose daemon died): takes the directory's lock for the rewrite.
+    pub fn set_status_of(root: &Path, status: CaptureStatus) -> Result<(), StoreError> {
+        let _lock = DirLock::acquire(root)?;
+        let mut info = Self::read_info(root)?;
+        info.status = status;
+        write_info(root, &info)
+    }
+
     /// Replace the recorded camera settings (after configuring the device).
     pub fn set_camera(&mut self, camera: serde_json::Value) -> Result<(), StoreError> {
         self.info.camera = camera;
@@ -250,12 +287,7 @@ impl CaptureDir {
     }
 
     fn rewrite_info(&self) -> Result<(), StoreError> {
-        let bytes = serde_json::to_vec_pretty(&self.info).map_err(|e| StoreError::Io {
-            what: "encoding",
-            path: Self::INFO.into(),
-            source: io::Error::other(e),
-        })?;
-        write_atomic(&self.root.join(Self::INFO), &bytes, &self.root)
+        write_info(&self.root, &self.info)
     }
 
     /// Store a frame losslessly and record it.
@@ -308,6 +340,16 @@ impl CaptureDir {
     pub fn sync(&self) -> Result<(), StoreError> {
         self.manifest.sync_data().map_err(|e| io_err("syncing", &self.root.join(Self::MANIFEST), e, &self.root))
     }
+}
+
+/// Write `capture.json` atomically.
+fn write_info(root: &Path, info: &CaptureInfo) -> Result<(), StoreError> {
+    let bytes = serde_json::to_vec_pretty(info).map_err(|e| StoreError::Io {
+        what: "encoding",
+        path: CaptureDir::INFO.into(),
+        source: io::Error::other(e),
+    })?;
+    write_atomic(&root.join(CaptureDir::INFO), &bytes, root)
 }
 
 fn verify_file(path: &Path, crc: u32) -> Result<(), String> {

@@ -14,7 +14,12 @@ pub enum CaptureStatus {
     InProgress,
     /// Stopped by the operator or an error; `--resume` continues it.
     Interrupted,
-    /// Every planned frame is stored.
+    /// Every planned frame is stored, but the fit has not written the
+    /// material yet (it is running, or was stopped or failed: `--resume`
+    /// or `refl fit` makes it).
+    Captured,
+    /// Every planned frame is stored, and the material (unless the capture
+    /// was made with `--no-fit`), renders and report are written.
     Complete,
 }
 

@@ -20,5 +20,5 @@
 mod dir;
 mod format;
 
-pub use dir::{CaptureDir, ResumeState, StoreError};
+pub use dir::{CaptureDir, DirLock, ResumeState, StoreError};
 pub use format::{CAPTURE_FORMAT_VERSION, CaptureInfo, CaptureStatus, FrameKind, ManifestEntry, SensorInfo, SimInfo};

@@ -113,13 +113,17 @@ fn main() -> ExitCode {
         }
     };
     let result = rt.block_on(async {
+        let mut stop = cli::stop_on_signals()?;
         if let Some(which) = &args.calibrate {
-            let (rf, _) = RigFile::load(args.rig.as_deref())?;
+            let (rf, _) = RigFile::load(args.rig.as_deref()).map_err(cli::usage)?;
             let q = cli::presets::preset(&args.quality)
-                .ok_or_else(|| anyhow::anyhow!("unknown quality '{}'", args.quality))?;
+                .ok_or_else(|| cli::usage(anyhow::anyhow!("unknown quality '{}'", args.quality)))?;
             let g = capture::geometry_for(&rf, &q);
-            let store = cli::calib::CalibrationStore::new(args.calib_dir.as_deref(), &rf.name);
-            let c = capture::calibrate(&rf, &g, &store, &mut rep, which == "white").await?;
+            let store = cli::calib::CalibrationStore::new(args.calib_dir.as_deref(), &rf.name)?;
+            let c = tokio::select! {
+                c = capture::calibrate(&rf, &g, &store, &mut rep, which == "white") => c?,
+                _ = stop.wait_for(|s| *s) => return Err(capture::Interrupted.into()),
+            };
             rep.emit(cli::progress::Event::Done { summary: serde_json::json!({ "calibration": c.id }) });
             return anyhow::Ok(0);
         }
@@ -149,11 +153,10 @@ fn main() -> ExitCode {
         if !args.no_daemon {
             if let Some((socket, stream)) = cli::daemon::connect().await {
                 rep.stage("capture", format!("handing the job to the daemon on {}", socket.display()));
-                return cli::daemon::capture_via(&socket, stream, req, &mut rep).await;
+                return cli::daemon::capture_via(&socket, stream, req, &mut rep, stop).await;
             }
         }
-        let (_tx, rx) = tokio::sync::watch::channel(false);
-        let summary = capture::run(req, &mut rep, rx).await?;
+        let summary = capture::run(req, &mut rep, stop).await?;
         if !args.json {
             eprintln!("capture: {}", summary.dir.display());
             if let Some(m) = &summary.material {
@@ -165,7 +168,7 @@ fn main() -> ExitCode {
     match result {
         Ok(code) => ExitCode::from(code as u8),
         Err(e) => {
-            let code = cli::daemon::exit_code(&e);
+            let code = cli::exit::code(&e);
             rep.emit(cli::progress::Event::Error { message: format!("{e:#}") });
             ExitCode::from(code as u8)
         }

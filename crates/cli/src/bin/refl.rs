@@ -2,6 +2,7 @@
 
 use std::process::ExitCode;
 
+use anyhow::Context;
 use clap::{Parser, Subcommand};
 
 /// Fit, inspect and serve reflectance captures.
@@ -21,6 +22,10 @@ enum Cmd {
         /// Use another quality preset's fitting knobs than the capture's.
         #[arg(long)]
         quality: Option<String>,
+        /// Fit a capture that is missing planned shots (interrupted and not
+        /// resumed); the material and report are marked partial.
+        #[arg(long)]
+        partial: bool,
     },
     /// Score a capture's fitted material: renders under novel conditions
     /// against ground truth (simulated captures), NDF errors, and hold-out
@@ -141,8 +146,13 @@ enum Cmd {
 #[derive(Debug, clap::Args)]
 struct ImportArgs {
     file: std::path::PathBuf,
+    /// Material directory to create (new or empty).
     #[arg(long)]
     out: std::path::PathBuf,
+    /// Replace the material already in --out (only a material: a directory
+    /// holding anything else is never touched).
+    #[arg(long)]
+    replace: bool,
     /// NDF table rings (the table is RINGS x 3*RINGS cells).
     #[arg(long, default_value_t = 32)]
     ndf_theta: u32,
@@ -239,22 +249,23 @@ enum BenchCmd {
 
 /// `refl import-rgl` and `refl import-merl`.
 fn import(rgl: bool, a: &ImportArgs) -> anyhow::Result<()> {
-    let ImportArgs { file, out, ndf_theta, width_mm } = a;
+    let ImportArgs { file, out, replace, ndf_theta, width_mm } = a;
     let (ndf_theta, width_mm) = (*ndf_theta, *width_mm);
-    if out.join("material.json").exists() {
-        anyhow::bail!("{} already holds a material; choose another --out", out.display());
-    }
+    let mode = if *replace { material::WriteMode::Replace } else { material::WriteMode::New };
     let grid = brdf::ndf::NdfGrid::new(ndf_theta, 3 * ndf_theta)
-        .map_err(|e| anyhow::anyhow!("--ndf-theta {ndf_theta}: {e}"))?;
+        .map_err(|e| cli::usage(anyhow::anyhow!("--ndf-theta {ndf_theta}: {e}")))?;
+    if !(width_mm.is_finite() && width_mm > 0.0 && width_mm <= 2000.0) {
+        return Err(cli::usage(anyhow::anyhow!("--width-mm {width_mm}: expected above 0 and at most 2000")));
+    }
     let name = file.file_stem().map_or("imported".into(), |s| s.to_string_lossy().into_owned());
     let (m, summary) = if rgl {
-        let b = material::rgl::RglBrdf::read(file).map_err(|e| anyhow::anyhow!("{}: {e}", file.display()))?;
+        let b = material::rgl::RglBrdf::read(file).with_context(|| file.display().to_string())?;
         tokio::task::block_in_place(|| material::rgl::import(&b, &name, grid, width_mm))
     } else {
-        let b = material::merl::MerlBrdf::read(file).map_err(|e| anyhow::anyhow!("{}: {e}", file.display()))?;
+        let b = material::merl::MerlBrdf::read(file).with_context(|| file.display().to_string())?;
         tokio::task::block_in_place(|| material::merl::import(&b, &name, grid, width_mm))
     };
-    material::write(out, &m).map_err(|e| anyhow::anyhow!("writing {}: {e}", out.display()))?;
+    material::write(out, &m, mode).with_context(|| format!("writing {}", out.display()))?;
     println!("{}", serde_json::to_string(&summary)?);
     Ok(())
 }
@@ -270,14 +281,18 @@ fn main() -> ExitCode {
         }
     };
     let r: anyhow::Result<()> = rt.block_on(async {
+        let stop = cli::stop_on_signals()?;
         match args.cmd {
-            Cmd::Fit { dir, quality } => {
+            Cmd::Fit { dir, quality, partial } => {
                 let mut rep = cli::progress::Reporter::auto(false);
                 let q = match quality {
-                    Some(n) => Some(cli::presets::preset(&n).ok_or_else(|| anyhow::anyhow!("unknown quality '{n}'"))?),
+                    Some(n) => Some(
+                        cli::presets::preset(&n)
+                            .ok_or_else(|| cli::usage(anyhow::anyhow!("unknown quality '{n}'")))?,
+                    ),
                     None => None,
                 };
-                let m = cli::output::refit(&dir, q, &mut rep).await?;
+                let m = cli::output::refit(&dir, q, partial, &mut rep, &stop).await?;
                 println!("{}", m.display());
                 Ok(())
             }
@@ -295,13 +310,13 @@ fn main() -> ExitCode {
             Cmd::Render { dir, model, light, camera, px, out } => {
                 let dir = if dir.join("material").is_dir() { dir.join("material") } else { dir };
                 if !(8..=4096).contains(&px) {
-                    anyhow::bail!("--px {px}: expected 8 to 4096");
+                    return Err(cli::usage(anyhow::anyhow!("--px {px}: expected 8 to 4096")));
                 }
-                let light = cli::renders::Lighting::parse(&light)?;
-                let camera = cli::renders::parse_pair(&camera).map_err(|e| anyhow::anyhow!("--camera: {e}"))?;
-                let m = std::sync::Arc::new(
-                    material::read(&dir).map_err(|e| anyhow::anyhow!("reading {}: {e}", dir.display()))?,
-                );
+                let light = cli::renders::Lighting::parse(&light).map_err(cli::usage)?;
+                let camera = cli::renders::parse_pair(&camera)
+                    .map_err(|e| cli::usage(anyhow::anyhow!("--camera: {e}")))?;
+                let m = std::sync::Arc::new(material::read(&dir).with_context(|| format!("reading {}", dir.display()))?);
+                cli::renders::model_by_name(&m, &model).map_err(cli::usage)?;
                 let scene = cli::renders::scene(camera, light, px);
                 tokio::task::block_in_place(|| cli::renders::render_to_file(m, &model, &scene, &out))?;
                 println!("{}", out.display());
@@ -337,7 +352,7 @@ fn main() -> ExitCode {
                     return Ok(());
                 }
                 let socket = socket.unwrap_or_else(cli::daemon::default_socket);
-                cli::daemon::serve(&socket).await
+                cli::daemon::serve(&socket, stop).await
             }
             Cmd::Tradeoff { sample, out, settings, replot } => {
                 let mut rep = cli::progress::Reporter::new(cli::progress::Mode::Plain);
@@ -369,7 +384,7 @@ fn main() -> ExitCode {
             Cmd::ImportMerl(a) => import(false, &a),
             Cmd::ExportGltf { dir, out } => {
                 let dir = if dir.join("material").is_dir() { dir.join("material") } else { dir };
-                let m = material::read(&dir).map_err(|e| anyhow::anyhow!("reading {}: {e}", dir.display()))?;
+                let m = material::read(&dir).with_context(|| format!("reading {}", dir.display()))?;
                 for f in cli::gltf::export(&m, &out)? {
                     println!("{}", f.display());
                 }
@@ -399,13 +414,14 @@ fn main() -> ExitCode {
                 }
             },
             Cmd::SimMcu { faults, link, time_scale } => {
-                let spec = sim::FaultSpec::parse(&faults).map_err(|e| anyhow::anyhow!("--faults: {e}"))?;
+                let spec = sim::FaultSpec::parse(&faults).map_err(|e| cli::usage(anyhow::anyhow!("--faults: {e}")))?;
                 let cfg = cli::session::mcu_config(&setup::RigGeometry::default(), time_scale);
                 let mcu = sim::SimMcu::spawn_pty(cfg, spec, sim::World::new(), link).await?;
                 let path = mcu.device_path().ok_or_else(|| anyhow::anyhow!("the emulator has no device"))?;
                 println!("{}", path.display());
                 eprintln!("emulated rig MCU on {}; Ctrl-C to stop", path.display());
-                tokio::signal::ctrl_c().await?;
+                let mut stop = stop;
+                let _ = stop.wait_for(|s| *s).await;
                 mcu.stop().await?;
                 Ok(())
             }
@@ -415,7 +431,7 @@ fn main() -> ExitCode {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {e:#}");
-            ExitCode::FAILURE
+            ExitCode::from(cli::exit::code(&e) as u8)
         }
     }
 }

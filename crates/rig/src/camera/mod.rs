@@ -67,6 +67,20 @@ pub enum CameraError {
     Io(#[from] std::io::Error),
 }
 
+/// Frames a camera threw away since it was configured, by reason; each
+/// was replaced by a later frame, so nothing is missing from a capture.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct Discards {
+    /// The driver flagged the buffer as damaged.
+    pub error_flagged: u64,
+    /// Exposed before the LED was known to be lit (a stale buffer).
+    pub stale: u64,
+    /// Within the settle window after an exposure or gain change.
+    pub settling: u64,
+    /// Shorter than the format says (a torn transfer).
+    pub short: u64,
+}
+
 /// A camera that streams frames with monotonic timestamps.
 pub trait Camera: Send {
     fn describe(&self) -> String;
@@ -89,4 +103,7 @@ pub trait Camera: Send {
         after: MonoNs,
         timeout: Duration,
     ) -> impl Future<Output = Result<Frame, CameraError>> + Send;
+
+    /// What [`Camera::frame_after`] discarded since [`Camera::configure`].
+    fn discards(&mut self) -> impl Future<Output = Discards> + Send;
 }

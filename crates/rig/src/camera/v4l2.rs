@@ -159,6 +159,16 @@ impl Camera for V4l2Camera {
     async fn frame_after(&mut self, after: MonoNs, timeout: Duration) -> Result<Frame, CameraError> {
         self.ask(|tx| Request::FrameAfter(after, timeout, tx)).await
     }
+
+    async fn discards(&mut self) -> super::Discards {
+        let c = self.counters().await;
+        super::Discards {
+            error_flagged: c.dropped_error,
+            stale: c.dropped_early,
+            settling: c.dropped_settling,
+            short: c.dropped_short,
+        }
+    }
 }
 
 fn open_device(path: &Path) -> Result<Device, CameraError> {

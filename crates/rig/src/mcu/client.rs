@@ -134,6 +134,19 @@ impl<T: AsyncRead + AsyncWrite + Unpin> McuClient<T> {
         self.boot_id
     }
 
+    /// Continue the sequence numbers of an earlier client on the same
+    /// controller, so that late replies to that client's commands (still
+    /// in the port's buffers after a reconnect) are recognised as stale
+    /// instead of answering this client's first commands.
+    pub fn continue_sequence(&mut self, after: u8) {
+        self.seq = after;
+    }
+
+    /// The sequence number of the last command sent.
+    pub fn last_sequence(&self) -> u8 {
+        self.seq
+    }
+
     /// Time since the last frame was sent.
     pub fn quiet_for(&self) -> Duration {
         self.last_tx.elapsed()

@@ -76,6 +76,11 @@ pub struct RigSettings {
     pub reconnect_timeout: Duration,
     /// Recoveries allowed within one operation before giving up.
     pub max_recoveries_per_op: u32,
+    /// Wall time one operation may spend recovering before giving up.
+    pub recovery_time_per_op: Duration,
+    /// Recoveries allowed over the rig's whole session (a capture): a link
+    /// that keeps failing is a fault to fix, not to ride out.
+    pub max_recoveries_total: u32,
     /// Expected motion, to predict when `MoveDone` is due.
     pub speed_um_s: f64,
     pub accel_um_s2: f64,
@@ -95,6 +100,8 @@ impl Default for RigSettings {
             led_max_on_ms: 1000,
             reconnect_timeout: Duration::from_secs(15),
             max_recoveries_per_op: 6,
+            recovery_time_per_op: Duration::from_secs(60),
+            max_recoveries_total: 200,
             speed_um_s: 100_000.0,
             accel_um_s2: 1_000_000.0,
             settle_ms: 30.0,
@@ -119,8 +126,11 @@ pub enum RigError {
     Connect { port: String, cause: LinkError },
     #[error("{op} failed: {cause}")]
     Link { op: &'static str, cause: LinkError },
-    #[error("{op} still failing after {n} recoveries; last error: {cause}")]
-    GaveUp { op: &'static str, n: u32, cause: LinkError },
+    #[error(
+        "{op} still failing after {n} recoveries in {secs} s; the rig answers too slowly or not at all: \
+         power-cycle the controller, check its USB cable, then continue with --resume (last error: {cause})"
+    )]
+    GaveUp { op: &'static str, n: u32, secs: u64, cause: LinkError },
     #[error(
         "the rig's port {port} disappeared and did not come back within {secs} s (check the USB cable and the rig's power)"
     )]
@@ -152,6 +162,28 @@ impl Op {
     }
 }
 
+/// How a recovery step ended, when it did not succeed.
+enum Step {
+    /// The link failed again during the step: count it and try again.
+    Again(LinkError),
+    /// Nothing more to try (e-stop, a refusal, a port that stayed away).
+    Fatal(RigError),
+}
+
+impl Step {
+    /// Link failures and reboots during a step are retried by the loop;
+    /// anything else (a refusal, a version mismatch) ends the operation.
+    fn again_or(op: Op) -> impl Fn(LinkError) -> Step {
+        move |e| {
+            if e.is_link_down() || matches!(e, LinkError::Rebooted { .. }) {
+                Step::Again(e)
+            } else {
+                Step::Fatal(RigError::Link { op: op.name(), cause: e })
+            }
+        }
+    }
+}
+
 enum Out {
     Done,
     Position(i32),
@@ -168,6 +200,7 @@ pub struct Rig<C: Connector> {
     position_um: Option<i32>,
     epoch: u64,
     recoveries: Vec<Recovery>,
+    total_recoveries: u32,
     settings: RigSettings,
     closed_stats: LinkStats,
 }
@@ -195,6 +228,7 @@ impl<C: Connector> Rig<C> {
             position_um: None,
             epoch: 0,
             recoveries: Vec::new(),
+            total_recoveries: 0,
             settings,
             closed_stats: LinkStats::default(),
         };
@@ -306,24 +340,53 @@ impl<C: Connector> Rig<C> {
         }
     }
 
+    /// Run `op`, recovering from faults in between attempts. Recovery is
+    /// a loop, never a recursion: every failed attempt and every failed
+    /// recovery step counts against the operation's budget
+    /// (`max_recoveries_per_op`, `recovery_time_per_op`) and the rig's
+    /// (`max_recoveries_total`), so a rig that answers too slowly or not at
+    /// all ends in [`RigError::GaveUp`] instead of reconnecting forever.
     async fn run(&mut self, op: Op) -> Result<Out, RigError> {
+        let started = Instant::now();
         let mut n = 0;
+        let mut pending: Option<LinkError> = None;
         loop {
-            let err = match self.attempt(op).await {
-                Ok(o) => return Ok(o),
-                Err(e) => e,
-            };
-            n += 1;
-            if n > self.settings.max_recoveries_per_op {
-                return Err(RigError::GaveUp { op: op.name(), n: n - 1, cause: err });
+            if let Some(err) = pending.take() {
+                n += 1;
+                self.total_recoveries += 1;
+                let over_count = n > self.settings.max_recoveries_per_op;
+                let over_time = started.elapsed() > self.settings.recovery_time_per_op;
+                let over_total = self.total_recoveries > self.settings.max_recoveries_total;
+                if over_count || over_time || over_total {
+                    return Err(RigError::GaveUp {
+                        op: op.name(),
+                        n: n - 1,
+                        secs: started.elapsed().as_secs(),
+                        cause: err,
+                    });
+                }
+                match self.recover(op, err).await {
+                    Ok(()) => self.epoch += 1,
+                    Err(Step::Again(e)) => {
+                        // The recovery itself failed on the link: count it, try again.
+                        self.epoch += 1;
+                        pending = Some(e);
+                        continue;
+                    }
+                    Err(Step::Fatal(e)) => return Err(e),
+                }
             }
-            self.recover(op, err).await?;
-            self.epoch += 1;
+            match self.attempt(op).await {
+                Ok(o) => return Ok(o),
+                Err(e) => pending = Some(e),
+            }
         }
     }
 
-    /// Bring the rig back to the state the caller expects after `err`.
-    async fn recover(&mut self, op: Op, err: LinkError) -> Result<(), RigError> {
+    /// One recovery step: bring the rig back to the state the caller
+    /// expects after `err`. A link failure during the step is returned as
+    /// [`Step::Again`] for [`Rig::run`]'s loop to count.
+    async fn recover(&mut self, op: Op, err: LinkError) -> Result<(), Step> {
         match err {
             LinkError::Rebooted { old, new } => {
                 tracing::warn!(
@@ -336,21 +399,22 @@ impl<C: Connector> Rig<C> {
             }
             e if e.is_link_down() => {
                 tracing::warn!(error = %e, "lost the rig's serial link; reconnecting");
-                self.reconnect().await?;
+                self.reconnect().await.map_err(Step::Fatal)?;
                 self.restore(op).await
             }
-            LinkError::Nak { reason: NakReason::EStopLatched, .. } => Err(RigError::EStopped),
+            LinkError::Nak { reason: NakReason::EStopLatched, .. } => Err(Step::Fatal(RigError::EStopped)),
             LinkError::Nak { reason: NakReason::FaultLatched, .. } => {
-                let st = self.status_raw(op).await?;
+                let c = self.client.as_mut().ok_or(Step::Again(LinkError::Closed))?;
+                let st = c.status().await.map_err(Step::again_or(op))?;
                 if st.faults.has(Faults::WATCHDOG) {
                     tracing::warn!("the rig's watchdog tripped (the host was silent too long); clearing and restoring");
                     self.recoveries.push(Recovery::WatchdogCleared);
                     self.restore(op).await
                 } else {
-                    Err(RigError::Link {
+                    Err(Step::Fatal(RigError::Link {
                         op: op.name(),
                         cause: LinkError::Nak { command: "any", reason: NakReason::FaultLatched },
-                    })
+                    }))
                 }
             }
             LinkError::Nak { reason: NakReason::NotHomed, .. } if !matches!(op, Op::Home) => {
@@ -358,60 +422,32 @@ impl<C: Connector> Rig<C> {
                 self.was_homed = true;
                 self.restore(op).await
             }
-            cause => Err(RigError::Link { op: op.name(), cause }),
+            cause => Err(Step::Fatal(RigError::Link { op: op.name(), cause })),
         }
-    }
-
-    async fn status_raw(&mut self, op: Op) -> Result<StatusInfo, RigError> {
-        let c = self.client.as_mut().ok_or(RigError::Link { op: op.name(), cause: LinkError::Closed })?;
-        c.status().await.map_err(|cause| RigError::Link { op: op.name(), cause })
     }
 
     /// Hello, clear faults, and (if the rig had been homed) home and return
-    /// to the last target. Errors here are returned as link errors for the
-    /// caller's recovery loop to handle.
-    async fn restore(&mut self, op: Op) -> Result<(), RigError> {
-        let wrap = |cause| RigError::Link { op: op.name(), cause };
-        let c = self.client.as_mut().ok_or(wrap(LinkError::Closed))?;
-        let result: Result<(), LinkError> = async {
-            let info = c.hello().await?;
-            c.clear_fault().await?;
-            c.all_off().await?;
-            self.info = Some(info);
-            Ok(())
-        }
-        .await;
-        if let Err(e) = result {
-            // Leave it to the loop: it will count and recover again.
-            return if e.is_link_down() || matches!(e, LinkError::Rebooted { .. }) {
-                Box::pin(self.recover(op, e)).await
-            } else {
-                Err(wrap(e))
-            };
-        }
+    /// to the last target.
+    async fn restore(&mut self, op: Op) -> Result<(), Step> {
+        let c = self.client.as_mut().ok_or(Step::Again(LinkError::Closed))?;
+        let info = c.hello().await.map_err(Step::again_or(op))?;
+        c.clear_fault().await.map_err(Step::again_or(op))?;
+        c.all_off().await.map_err(Step::again_or(op))?;
+        self.info = Some(info);
         if self.was_homed && !matches!(op, Op::Home) {
             self.recoveries.push(Recovery::Rehomed);
             let hb = self.heartbeat_interval();
             let back = self.target_um;
             let predicted = back.map(|t| self.predicted_move(None, t));
             let home_expected = self.predicted_home();
-            let c = self.client.as_mut().ok_or(wrap(LinkError::Closed))?;
-            let r: Result<(), LinkError> = async {
-                c.start_motion(Command::Home).await?;
-                c.wait_motion(home_expected, Duration::from_millis(HOME_TIMEOUT_MS as u64), hb).await?;
-                if let (Some(t), Some(p)) = (back, predicted) {
-                    c.start_motion(Command::MoveTo { position_um: t }).await?;
-                    c.wait_motion(p, p * 4, hb).await?;
-                }
-                Ok(())
-            }
-            .await;
-            if let Err(e) = r {
-                return if e.is_link_down() || matches!(e, LinkError::Rebooted { .. }) {
-                    Box::pin(self.recover(op, e)).await
-                } else {
-                    Err(wrap(e))
-                };
+            let c = self.client.as_mut().ok_or(Step::Again(LinkError::Closed))?;
+            c.start_motion(Command::Home).await.map_err(Step::again_or(op))?;
+            c.wait_motion(home_expected, Duration::from_millis(HOME_TIMEOUT_MS as u64), hb)
+                .await
+                .map_err(Step::again_or(op))?;
+            if let (Some(t), Some(p)) = (back, predicted) {
+                c.start_motion(Command::MoveTo { position_um: t }).await.map_err(Step::again_or(op))?;
+                c.wait_motion(p, p * 4, hb).await.map_err(Step::again_or(op))?;
             }
             self.position_um = back;
         }
@@ -419,6 +455,7 @@ impl<C: Connector> Rig<C> {
     }
 
     async fn reconnect(&mut self) -> Result<(), RigError> {
+        let last_seq = self.client.as_ref().map_or(0, |c| c.last_sequence());
         if let Some(c) = self.client.take() {
             let s = c.stats();
             self.closed_stats.commands += s.commands;
@@ -436,6 +473,7 @@ impl<C: Connector> Rig<C> {
                 Ok(io) => {
                     let mut c = McuClient::new(io);
                     c.reply_timeout = self.settings.reply_timeout;
+                    c.continue_sequence(last_seq);
                     let _ = c.drain_boot(Duration::from_millis(50)).await;
                     self.client = Some(c);
                     let after_ms = start.elapsed().as_millis() as u64;
