@@ -5,6 +5,7 @@
 //! camera) keep each run to seconds; the simulation is seeded, so two runs
 //! of one capture give the same frames.
 
+use std::path::Path;
 use std::process::Stdio;
 use std::time::{Duration, Instant};
 
@@ -392,4 +393,38 @@ fn cameras_are_listed_and_a_hardware_rig_without_its_devices_is_explained() {
     assert!(stderr(&o).contains("no-video"), "{}", stderr(&o));
     let saved = std::fs::read_dir(lab.path("data/calibration/bench")).map_or(0, |d| d.count());
     assert_eq!(saved, 0, "a failed scan saves no calibration");
+}
+
+/// A capture written by this format version (committed under
+/// `tests/fixtures/capture-v1`: `capture --sample ward --quality fast
+/// --grid 4 --camera-px 32 --steps 2 --led-stride 8 --hdr 1 --no-fit`)
+/// still reads, fits and scores, so renaming a setting or a field cannot
+/// silently break stored captures; another version is refused with the
+/// usage code, naming the version.
+#[test]
+fn a_capture_of_this_format_version_still_reads() {
+    let lab = Lab::new();
+    let fixture = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/fixtures/capture-v1");
+    let dir = lab.path("fixture");
+    std::fs::create_dir_all(dir.join("frames")).unwrap();
+    for e in ["capture.json", "manifest.jsonl"].iter().map(|n| fixture.join(n)).chain(
+        std::fs::read_dir(fixture.join("frames")).unwrap().map(|e| e.unwrap().path()),
+    ) {
+        let rel = e.strip_prefix(&fixture).unwrap();
+        std::fs::copy(&e, dir.join(rel)).unwrap();
+    }
+    assert_ok(&lab.refl(&["fit", s(&dir)]), "refl fit of the fixture");
+    for (file, what) in [("material/material.json", "material"), ("report.json", "report")] {
+        let v: serde_json::Value = serde_json::from_slice(&std::fs::read(dir.join(file)).unwrap()).unwrap();
+        assert_eq!(v["format_version"], 1, "{what}");
+    }
+    let o = lab.refl(&["eval", s(&dir), "--json", "--no-holdout", "--px", "16"]);
+    assert_ok(&o, "refl eval of the fixture");
+
+    let info = std::fs::read_to_string(dir.join("capture.json")).unwrap();
+    assert!(info.contains("\"format_version\": 1"));
+    std::fs::write(dir.join("capture.json"), info.replace("\"format_version\": 1", "\"format_version\": 99")).unwrap();
+    let o = lab.refl(&["fit", s(&dir)]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("version 99"), "{}", stderr(&o));
 }

@@ -24,9 +24,7 @@
 mod simfit;
 
 use brdf::Brdf;
-use brdf::fresnel::Fresnel;
-use brdf::model::Microfacet;
-use brdf::ndf::{MaskingOperator, TabulatedNdf};
+use brdf::ndf::MaskingOperator;
 use fit::FitSettings;
 use glam::Vec3;
 use simfit::{Scenario, run, true_table};
@@ -79,12 +77,12 @@ fn held_out_lights_are_predicted_near_the_noise_floor() {
     let all = FitSettings::default();
     let (mut n, mut d, mut nt) = (0.0f64, 0.0f64, 0.0f64);
     for p in INTERIOR {
-        let model = Microfacet {
-            kd: Vec3::from(f.maps.kd[p]),
-            ks: Vec3::from(f.maps.ks[p]),
-            ndf: TabulatedNdf::new(f.maps.tables.get(p), &op),
-            fresnel: Fresnel::DielectricRelative { eta: f.maps.eta[p] },
-        };
+        let model = material::PointMaterial::fitted(
+            Vec3::from(f.maps.kd[p]),
+            Vec3::from(f.maps.ks[p]),
+            f.maps.eta[p],
+            material::PointMaterial::table_ndf(f.maps.tables.get(p), &op),
+        );
         let truth = s.material.at(f.ctx.positions[p].truncate());
         let every = fit::points::gather(&f.ctx, &f.store, p, &all);
         let used = fit::points::gather(&f.ctx, &f.store, p, &f.settings);

@@ -38,7 +38,7 @@ fn plan(steps: u32, leds: u8) -> Vec<Shot> {
     for s in 0..steps {
         let x = -120_000 + (240_000 / (steps.max(2) - 1) as i32) * s as i32;
         for l in 0..leds {
-            v.push(Shot { index: v.len() as u32, step: s, led: l, position_um: x });
+            v.push(Shot { index: v.len() as u32, step: s, led: l, exposure: 0, position_um: x });
         }
     }
     v

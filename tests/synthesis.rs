@@ -81,11 +81,9 @@ fn eligible(f: &Fitted) -> Vec<bool> {
 
 /// The synthesized tables after the refit with the completed NDF.
 fn synthesized(f: &Fitted, settings: &SynthSettings) -> TableSet {
-    let out = synthesize(&f.maps.tables, &eligible(f), settings);
-    let added: Vec<bool> = out.mass_factor.iter().map(|&k| k != 1.0).collect();
     let mut maps = f.maps.clone();
     let op = MaskingOperator::new(f.settings.grid);
-    fit::points::refit_completed(&f.ctx, &f.store, &mut maps, &out.tables, &added, &f.settings, &op);
+    fit::pipeline::synthesis_stage(&f.ctx, &f.store, &mut maps, settings, &f.settings, &op);
     maps.tables
 }
 

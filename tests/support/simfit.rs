@@ -3,8 +3,8 @@
 
 use std::sync::Arc;
 
-use brdf::ndf::{MaskingOperator, NdfTable};
-use fit::{FitContext, FitInputs, FitSettings, Ingest, PointMaps, SampleStore};
+use brdf::ndf::NdfTable;
+use fit::{FitContext, FitInputs, FitSettings, Pipeline, PointMaps, SampleStore, Stages};
 use material::SvBrdf;
 use setup::{Calibration, CameraModel, CapturePlan, PointGrid, RigGeometry};
 use sim::camera::{CameraTiming, LedTruth, SensorModel, SimCamera, SimCameraConfig};
@@ -73,24 +73,23 @@ pub fn run(s: &Scenario, settings: FitSettings) -> Fitted {
         bit_depth: sensor.bit_depth,
     };
     let ctx = FitContext::new(inputs);
-    let mut ingest = Ingest::new(&ctx);
+    let stages = Stages { keep_samples: true, ..Stages::default() };
+    let mut pipeline = Pipeline::new(&ctx, settings.clone(), stages);
     for (e, &us) in plan.exposures_us.iter().enumerate() {
         cam.set_exposure_direct(us, plan.gain);
         for _ in 0..plan.dark_frames {
             let f = cam.render_direct(0, None);
-            ingest.push_dark(e as u8, &f);
+            pipeline.push_dark(e as u8, &f);
         }
     }
     for shot in plan.shots() {
         cam.set_exposure_direct(plan.exposures_us[shot.exposure as usize], plan.gain);
         let f = cam.render_direct(shot.position_um, Some(shot.led));
-        ingest.push_shot(&shot, &f);
+        pipeline.push_shot(&shot, &f);
     }
-    let store = ingest.finish();
-
-    let op = MaskingOperator::new(settings.grid);
-    let maps = fit::fit_points(&ctx, &store, &settings, &op);
-    Fitted { ctx, store, maps, settings }
+    let r = pipeline.finish(&|| false).expect("the scenario has usable samples");
+    let store = r.samples.expect("kept");
+    Fitted { ctx, store, maps: r.maps, settings }
 }
 
 /// The true NDF table of a point, normalised.

@@ -129,7 +129,7 @@ fn mem() -> String {
 
 /// `refl bench fit`.
 pub fn fit(sample: &str, side: u32, steps: u32, led_stride: u32, ndf_theta: u32, synthesis: bool) -> Result<()> {
-    let material = crate::capture::sim_material(sample, None)?;
+    let material = crate::session::sim_material(sample, None)?;
     println!(
         "fit benchmark: '{sample}', {side} x {side} points, {steps} steps x every {led_stride} LED, NDF {ndf_theta} x {} cells, {} threads",
         3 * ndf_theta,
@@ -148,48 +148,30 @@ pub fn fit(sample: &str, side: u32, steps: u32, led_stride: u32, ndf_theta: u32,
     );
     let settings =
         FitSettings { grid: brdf::ndf::NdfGrid { n_theta: ndf_theta, n_phi: 3 * ndf_theta }, ..FitSettings::default() };
-    let op = MaskingOperator::new(settings.grid);
-    let t = Instant::now();
-    let maps = fit::points::fit_points(&s.ctx, &s.store, &settings, &op);
-    let dt = t.elapsed().as_secs_f64();
-    let no_spec = maps.flags.iter().filter(|&&f| f & fit::point_flag::NO_SPECULAR != 0).count();
+    let clusters = (n as u32 / 100).clamp(8, 1000);
+    let stages = fit::Stages {
+        synth: synthesis.then(|| SynthSettings { clusters, ..SynthSettings::default() }),
+        ..fit::Stages::default()
+    };
+    let r = fit::pipeline::run_stages(&s.ctx, s.store, settings, &stages, &|| false)?;
+    let dt = r.timings.points_s;
+    let no_spec = r.maps.flags.iter().filter(|&&f| f & fit::point_flag::NO_SPECULAR != 0).count();
     println!(
-        "  per-point fit (gather, diffuse, splat, push-pull, masking, Fresnel): {:.1} s, {:.0} points/s; {no_spec} without specular; peak memory {}",
+        "  per-point fit (gather, diffuse, splat, push-pull, masking, Fresnel): {:.1} s, {:.0} points/s; {no_spec} without specular",
         dt,
         n as f64 / dt,
-        mem()
     );
-    if !synthesis {
-        return Ok(());
+    if let Some(st) = &r.synth {
+        let dt = r.timings.synthesis_s;
+        println!(
+            "  synthesis (accelerated, {clusters} clusters) and the refit with the completed NDFs: {:.1} s, {:.0} points/s; completed {} of {}",
+            dt,
+            n as f64 / dt,
+            st.completed,
+            st.points,
+        );
     }
-    let eligible: Vec<bool> = maps.flags.iter().map(|f| f & fit::point_flag::NO_SPECULAR == 0).collect();
-    let t = Instant::now();
-    let out = synthesize(
-        &maps.tables,
-        &eligible,
-        &SynthSettings { clusters: (n as u32 / 100).clamp(8, 1000), ..SynthSettings::default() },
-    );
-    let dt = t.elapsed().as_secs_f64();
-    println!(
-        "  synthesis (accelerated, {} clusters): {:.1} s, {:.0} points/s; completed {} of {}; peak memory {}",
-        (n as u32 / 100).clamp(8, 1000),
-        dt,
-        n as f64 / dt,
-        out.stats.completed,
-        out.stats.points,
-        mem()
-    );
-    let added: Vec<bool> = out.mass_factor.iter().map(|&k| k != 1.0).collect();
-    let mut maps = maps;
-    let t = Instant::now();
-    let refit = fit::points::refit_completed(&s.ctx, &s.store, &mut maps, &out.tables, &added, &settings, &op);
-    let dt = t.elapsed().as_secs_f64();
-    println!(
-        "  refit with the completed NDF: {refit} points in {:.1} s, {:.0} points/s; peak memory {}",
-        dt,
-        refit as f64 / dt.max(1e-9),
-        mem()
-    );
+    println!("  peak memory {}", mem());
     Ok(())
 }
 
@@ -218,7 +200,7 @@ fn ndf_error(s: &Synthetic, flags: &[u32], tables: &TableSet) -> f64 {
 
 /// `refl bench synthesis`.
 pub fn synthesis(sample: &str, side: u32, steps: u32, modes: &[SearchMode], clusters: Option<u32>) -> Result<()> {
-    let material = crate::capture::sim_material(sample, None)?;
+    let material = crate::session::sim_material(sample, None)?;
     let s = synthetic(material, side, steps, 1)?;
     let n = s.ctx.n_points();
     let settings = FitSettings::default();
@@ -338,7 +320,7 @@ pub async fn realtime(sample: &str, steps: u32, led_stride: u8, fps: f32) -> Res
 /// quantisation of one frame) at `px` x `px`, one LED lit.
 pub fn camera(sample: &str, px: u32, frames: u32) -> Result<f64> {
     use sim::camera::{CameraTiming, LedTruth, SensorModel, SimCamera, SimCameraConfig};
-    let material = crate::capture::sim_material(sample, None)?;
+    let material = crate::session::sim_material(sample, None)?;
     let mut g = RigGeometry::default();
     g.camera.width = px;
     g.camera.height = px;
@@ -410,7 +392,7 @@ pub async fn protocol(n: u32) -> Result<()> {
 /// normal (the kind of region a single view observes). Only the time and memory are meaningful here; the
 /// accuracy figures come from `refl bench synthesis`.
 pub fn synthesis_scale(sample: &str, points: usize, clusters: u32, rotations: u32, cone_deg: f32) -> Result<()> {
-    let material = crate::capture::sim_material(sample, None)?;
+    let material = crate::session::sim_material(sample, None)?;
     let grid = brdf::ndf::NdfGrid::DEFAULT;
     let side = (points as f64).sqrt().ceil() as usize;
     let cone = cone_deg.to_radians();

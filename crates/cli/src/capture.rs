@@ -16,18 +16,16 @@
 
 use std::collections::HashSet;
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, anyhow, bail};
 use frame::Frame;
-use material::SvBrdf;
 use rig::camera::{Camera, CameraError, CameraSettings};
 use rig::clock;
 use rig::mcu::{Connector, Rig, RigError};
 use rig::sequence::{self, Exposer, Shot};
 use serde::{Deserialize, Serialize};
-use setup::{Calibration, CapturePlan, PlannedShot, PointGrid, RigGeometry};
+use setup::{Calibration, CapturePlan, PointGrid, RigGeometry};
 use sim::FaultSpec;
 use store::{CaptureDir, CaptureInfo, CaptureStatus, FrameKind, SensorInfo, SimInfo};
 use tokio::sync::watch;
@@ -39,7 +37,8 @@ use crate::presets::{self, Overrides, Quality};
 use crate::progress::{Event, Reporter};
 use crate::report::{self, Report};
 use crate::rigfile::{RigFile, RigKind};
-use crate::session;
+use crate::session::{self, ground_truth, sim_material};
+use crate::Interrupted;
 
 /// What to capture (also the daemon's job request).
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -60,48 +59,6 @@ pub struct CaptureRequest {
     pub no_fit: bool,
     /// Stop after this many shots (tests and demonstrations of resume).
     pub stop_after: Option<u64>,
-}
-
-/// An operator's interruption (exit code 130): Ctrl-C, SIGTERM, a
-/// cancelled daemon job, or `--stop-after`.
-#[derive(Debug)]
-pub struct Interrupted;
-
-impl std::fmt::Display for Interrupted {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str("interrupted; everything captured so far is kept (continue with capture --resume)")
-    }
-}
-
-impl std::error::Error for Interrupted {}
-
-/// The simulated sample: a built-in material or a stored one.
-/// The material a simulated capture scanned (its ground truth); `None` for
-/// a capture made on hardware.
-pub fn ground_truth(info: &CaptureInfo) -> Result<Option<Arc<dyn SvBrdf>>> {
-    match &info.simulated {
-        Some(s) => Ok(Some(sim_material(
-            s.material.as_deref().unwrap_or(&info.sample),
-            s.material_dir.as_deref().map(Path::new),
-        )?)),
-        None => Ok(None),
-    }
-}
-
-pub fn sim_material(name: &str, dir: Option<&Path>) -> Result<Arc<dyn SvBrdf>> {
-    if let Some(d) = dir {
-        let m = material::read(d).with_context(|| format!("--sim-material {}", d.display()))?;
-        let choice = if m.ndf.is_some() { material::ModelChoice::Tabulated } else { material::ModelChoice::Partial };
-        let view = material::MaterialView::new(Arc::new(m), choice)
-            .ok_or_else(|| anyhow!("{} has no NDF tables to render", d.display()))?;
-        return Ok(Arc::new(view));
-    }
-    sim::materials::builtin(name).ok_or_else(|| {
-        anyhow!(
-            "unknown sample '{name}': the simulated rig knows {} (or use --sim-material DIR)",
-            sim::materials::builtin_names()
-        )
-    })
 }
 
 pub fn camera_settings(g: &RigGeometry, exposure_us: u32, gain: f32, fps: f32) -> CameraSettings {
@@ -253,7 +210,6 @@ struct Shooter<'a, C: Camera> {
     camera: &'a mut C,
     store: &'a mut CaptureDir,
     fit: Option<&'a FitJob>,
-    shots: &'a [PlannedShot],
     plan: &'a CapturePlan,
     exposure: Option<u8>,
     rep: &'a mut Reporter,
@@ -308,11 +264,10 @@ impl<C: Camera> Exposer for Shooter<'_, C> {
         if self.stop_after.is_some_and(|n| self.taken >= n) {
             return Err(Interrupted.into());
         }
-        let ps = self.shots[shot.index as usize];
-        let exposure_us = self.plan.exposures_us[ps.exposure as usize];
-        if self.exposure != Some(ps.exposure) {
+        let exposure_us = self.plan.exposures_us[shot.exposure as usize];
+        if self.exposure != Some(shot.exposure) {
             self.camera.set_exposure(exposure_us, self.plan.gain).await?;
-            self.exposure = Some(ps.exposure);
+            self.exposure = Some(shot.exposure);
         }
         let f = self.frame(lit_at, exposure_us).await?;
         let deadline = clock::to_mono(lit_at + self.led_max_on);
@@ -345,18 +300,13 @@ impl<C: Camera> Exposer for Shooter<'_, C> {
     }
 
     async fn commit(&mut self, shot: &Shot, item: Self::Item) -> Result<()> {
-        let ps = self.shots[shot.index as usize];
         let (frame, lit_at) = item;
-        let kind = FrameKind::Shot {
-            index: ps.index,
-            step: ps.step,
-            led: ps.led,
-            exposure: ps.exposure,
-            position_um: ps.position_um,
-        };
+        let kind = FrameKind::Shot(*shot);
         tokio::task::block_in_place(|| self.store.write_frame(kind, &frame, Some(clock::to_mono(lit_at))))?;
         if let Some(fit) = self.fit {
-            fit.send(FrameMsg::Shot { shot: ps, frame })?;
+            // Waits (without holding a runtime worker) while the fitter is
+            // 32 frames behind.
+            fit.send(FrameMsg::Shot { shot: *shot, frame }).await?;
         }
         self.done += 1;
         let rate = self.done as f64 / self.started.elapsed().as_secs_f64().max(1e-9);
@@ -429,7 +379,7 @@ pub async fn run(req: CaptureRequest, rep: &mut Reporter, cancel: watch::Receive
             calibration: Calibration::nominal(40, 1.0, 0.0),
             calibration_source: None,
             sensor: SensorInfo { bit_depth: 12, e_per_dn: 1.0 },
-            camera: serde_json::Value::Null,
+            camera: None,
             grid: PointGrid { cols: q.grid, rows: q.grid },
             settings: serde_json::to_value(&q)?,
             simulated: (rf.kind == RigKind::Sim).then(|| SimInfo {
@@ -502,7 +452,7 @@ pub async fn run(req: CaptureRequest, rep: &mut Reporter, cancel: watch::Receive
             CaptureDir::create(&out, info.clone())?
         }
     };
-    cd.set_camera(serde_json::to_value(&applied)?)?;
+    cd.set_camera(applied.clone())?;
     cd.set_status(CaptureStatus::InProgress)?;
     let root = cd.root().to_path_buf();
     rep.stage("capture", format!("writing to {}", root.display()));
@@ -540,12 +490,12 @@ pub async fn run(req: CaptureRequest, rep: &mut Reporter, cancel: watch::Receive
     s.close().await;
     report.time("capture_s", capture_started.elapsed().as_secs_f64());
     let link = s.rig.link_stats();
-    report.link = serde_json::json!({
-        "commands": link.commands,
-        "retransmits": link.retransmits,
-        "stale_replies": link.stale_replies,
-        "bad_frames": link.bad_frames,
-        "mean_rtt_us": link.mean_rtt().map(|d| d.as_secs_f64() * 1e6),
+    report.link = Some(report::LinkReport {
+        commands: link.commands,
+        retransmits: link.retransmits,
+        stale_replies: link.stale_replies,
+        bad_frames: link.bad_frames,
+        mean_rtt_us: link.mean_rtt().map(|d| d.as_secs_f64() * 1e6),
     });
     report.recoveries = s.rig.recoveries().iter().map(|r| format!("{r:?}")).collect();
     let (stats, discards) = match outcome {
@@ -559,11 +509,11 @@ pub async fn run(req: CaptureRequest, rep: &mut Reporter, cancel: watch::Receive
     // Every frame is stored; the capture is complete once its outputs are.
     cd.set_status(if job.is_some() { CaptureStatus::Captured } else { CaptureStatus::Complete })?;
     cd.sync()?;
-    report.frames = serde_json::json!({
-        "committed": stats.committed,
-        "retakes": stats.retakes,
-        "moves": stats.moves,
-        "camera_discards": discards,
+    report.frames = Some(report::FramesReport {
+        committed: stats.committed,
+        retakes: stats.retakes,
+        moves: stats.moves,
+        camera_discards: discards,
     });
     if discards.error_flagged + discards.stale + discards.short > 0 {
         rep.warn(format!(
@@ -633,24 +583,19 @@ async fn capture_frames<K: Connector, C: Camera>(
                 let f = camera.frame_after(clock::to_mono(off_at), Duration::from_secs(5)).await?;
                 tokio::task::block_in_place(|| cd.write_frame(FrameKind::Dark { exposure: e as u8, n }, &f, None))?;
                 if let Some(job) = job {
-                    job.send(FrameMsg::Dark { exposure: e as u8, frame: f })?;
+                    job.send(FrameMsg::Dark { exposure: e as u8, frame: f }).await?;
                 }
                 rig.keepalive().await?;
             }
         }
         let shots = plan.shots();
-        let todo: Vec<Shot> = shots
-            .iter()
-            .filter(|s| !done.contains(&s.index))
-            .map(|s| Shot { index: s.index, step: s.step, led: s.led, position_um: s.position_um })
-            .collect();
+        let todo: Vec<Shot> = shots.iter().filter(|s| !done.contains(&s.index)).copied().collect();
         rep.stage("capture", format!("{} shots to take", todo.len()));
         let led_max_on = Duration::from_millis(rig.settings().led_max_on_ms as u64);
         let mut shooter = Shooter {
             camera,
             store: cd,
             fit: job,
-            shots: &shots,
             plan: &plan,
             exposure: None,
             rep,

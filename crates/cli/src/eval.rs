@@ -26,9 +26,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result, anyhow};
 use brdf::Brdf;
-use brdf::fresnel::Fresnel;
-use brdf::model::Microfacet;
-use brdf::ndf::{MaskingOperator, NdfTable, TabulatedNdf};
+use brdf::ndf::{MaskingOperator, NdfTable};
 use glam::Vec3;
 use material::{Material, MaterialView, ModelChoice, NdfKind, SvBrdf};
 use render::{Image, Light, Scene};
@@ -36,7 +34,7 @@ use serde::Serialize;
 use setup::SampleArea;
 use store::CaptureDir;
 
-use crate::capture::ground_truth;
+use crate::session::ground_truth;
 use crate::presets::Quality;
 use crate::progress::Reporter;
 use crate::renders::Lighting;
@@ -79,8 +77,6 @@ pub fn conditions() -> Vec<Condition> {
     ]
 }
 
-/// Distance of the evaluation camera and lights from the sample centre.
-pub const EVAL_DISTANCE_MM: f32 = 400.0;
 
 pub fn scene_for(c: &Condition, px: u32) -> Scene {
     let light = Lighting::Point { elevation_deg: c.light_elevation_deg, azimuth_deg: c.light_azimuth_deg };
@@ -232,40 +228,28 @@ fn holdout(dir: &Path, rep: &mut Reporter) -> Result<BTreeMap<String, Holdout>> 
         serde_json::from_value(info.settings.clone()).context("capture.json lacks its quality settings")?;
     let mut settings = q.fit.clone();
     settings.holdout_every = Some(HOLDOUT_EVERY);
-    let inputs = crate::fitjob::fit_inputs(&info);
-    // Ingest everything, keep the store, fit without the held-out lights.
-    let ctx = fit::FitContext::new(inputs);
-    let mut ingest = fit::Ingest::new(&ctx);
-    for e in &entries {
-        let f = CaptureDir::read_frame(dir, e)?;
-        match e.frame {
-            store::FrameKind::Dark { exposure, .. } => ingest.push_dark(exposure, &f),
-            store::FrameKind::Shot { index, step, led, exposure, position_um } => {
-                ingest.push_shot(&setup::PlannedShot { index, step, led, exposure, position_um }, &f)
-            }
+    let ctx = fit::FitContext::new(crate::fitjob::fit_inputs(&info));
+    // Ingest everything, keep the samples, fit without the held-out lights.
+    let stages = fit::Stages { keep_samples: true, ..fit::Stages::default() };
+    let mut pipeline = fit::Pipeline::new(&ctx, settings, stages);
+    crate::fitjob::for_each_frame(dir, &entries, &mut |msg| {
+        match msg {
+            crate::fitjob::FrameMsg::Dark { exposure, frame } => pipeline.push_dark(exposure, &frame),
+            crate::fitjob::FrameMsg::Shot { shot, frame } => pipeline.push_shot(&shot, &frame),
         }
-    }
-    let store = ingest.finish();
-    let op = MaskingOperator::new(settings.grid);
-    let maps = fit::fit_points(&ctx, &store, &settings, &op);
+        Ok(())
+    })?;
+    let fitted = pipeline.finish(&|| false)?;
+    let (maps, store) = (&fitted.maps, fitted.samples.as_ref().ok_or_else(|| anyhow!("the fit kept no samples"))?);
+    let op = MaskingOperator::new(fitted.settings.grid);
     let (mut num, mut den) = (0.0f64, 0.0f64);
     for p in 0..ctx.n_points() {
-        let table = maps.tables.get(p);
-        let spec = if maps.ks[p].iter().any(|&v| v > 0.0) && table.integral_cos() > 0.0 {
-            Some(TabulatedNdf::new(table, &op))
-        } else {
-            None
-        };
-        let kd = Vec3::from(maps.kd[p]);
-        let model: Box<dyn Brdf> = match spec {
-            Some(ndf) => Box::new(Microfacet {
-                kd,
-                ks: Vec3::from(maps.ks[p]),
-                ndf,
-                fresnel: Fresnel::DielectricRelative { eta: maps.eta[p] },
-            }),
-            None => Box::new(brdf::model::Lambert { albedo: kd }),
-        };
+        let model = material::PointMaterial::fitted(
+            Vec3::from(maps.kd[p]),
+            Vec3::from(maps.ks[p]),
+            maps.eta[p],
+            material::PointMaterial::table_ndf(maps.tables.get(p), &op),
+        );
         for q in (0..ctx.n_lights()).filter(|q| *q as u32 % HOLDOUT_EVERY == 0) {
             let (rho, fl) = store.get(q, p);
             if fl & fit::samples::flag::UNUSABLE != 0 {

@@ -40,7 +40,7 @@ pub mod exit {
         use material::MaterialError as M;
         use store::StoreError as S;
         for cause in e.chain() {
-            if cause.is::<crate::capture::Interrupted>() {
+            if cause.is::<crate::Interrupted>() {
                 return INTERRUPTED;
             }
             if cause.is::<crate::Usage>()
@@ -73,6 +73,19 @@ pub mod exit {
         FAILED
     }
 }
+
+/// An operator's interruption (exit code 130): Ctrl-C, SIGTERM, a
+/// cancelled daemon job, or `--stop-after`.
+#[derive(Debug)]
+pub struct Interrupted;
+
+impl std::fmt::Display for Interrupted {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("interrupted; everything captured so far is kept (continue with capture --resume)")
+    }
+}
+
+impl std::error::Error for Interrupted {}
 
 /// A request that cannot be carried out as given (bad arguments, an
 /// unknown sample, an occupied output directory): the binaries exit with
@@ -126,17 +139,27 @@ pub fn stop_on_signals() -> anyhow::Result<tokio::sync::watch::Receiver<bool>> {
     Ok(rx)
 }
 
+/// How log lines are written.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
+pub enum LogFormat {
+    /// Human-readable lines (colour only when stderr is a terminal).
+    #[default]
+    Text,
+    /// One JSON object per line (timestamp, level, message, fields), for
+    /// the rig PC's journal or a log collector.
+    Json,
+}
+
 /// Install the log subscriber: `RUST_LOG` filters, `info` by default, to
 /// stderr; colour only when stderr is a terminal (a log written to a file
 /// or a pipe carries no escape codes).
-pub fn init_logging() {
+pub fn init_logging(format: LogFormat) {
     use std::io::IsTerminal;
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
-    let _ = tracing_subscriber::fmt()
-        .with_env_filter(filter)
-        .with_writer(std::io::stderr)
-        .with_ansi(std::io::stderr().is_terminal())
-        .with_target(false)
-        .try_init();
+    let builder = tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).with_target(false);
+    let _ = match format {
+        LogFormat::Text => builder.with_ansi(std::io::stderr().is_terminal()).try_init(),
+        LogFormat::Json => builder.json().with_ansi(false).try_init(),
+    };
 }

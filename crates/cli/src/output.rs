@@ -10,20 +10,18 @@ use store::CaptureInfo;
 
 use tokio::sync::watch;
 
-use crate::capture::Interrupted;
-use crate::fitjob::{FitJob, FitOutcome, Stages};
+use crate::Interrupted;
+use fit::{FitResult, Stages};
+
+use crate::fitjob::FitJob;
 use crate::presets::Overrides;
 use crate::presets::Quality;
 use crate::progress::Reporter;
 use crate::report::Report;
 
 /// Flag counts over the grid, by name.
-pub fn flag_counts(flags: &[u32]) -> serde_json::Value {
-    let mut m = serde_json::Map::new();
-    for &(bit, name) in fit::point_flag::NAMES {
-        m.insert(name.into(), serde_json::json!(flags.iter().filter(|&&f| f & bit != 0).count()));
-    }
-    serde_json::Value::Object(m)
+pub fn flag_counts(flags: &[u32]) -> std::collections::BTreeMap<String, usize> {
+    fit::point_flag::NAMES.iter().map(|&(bit, name)| (name.to_string(), flags.iter().filter(|&&f| f & bit != 0).count())).collect()
 }
 
 /// The fitting stages a quality preset asks for, minus those switched off.
@@ -31,11 +29,12 @@ pub fn stages(q: &Quality, o: &Overrides) -> Stages {
     Stages {
         synth: (!o.no_synthesis).then(|| q.synth.clone()),
         analytic: (!o.no_analytic && !q.analytic.models.is_empty()).then(|| q.analytic.clone()),
+        keep_samples: false,
     }
 }
 
 /// The material the fit describes.
-pub fn material_from(out: &FitOutcome, info: &CaptureInfo, q: &Quality) -> Material {
+pub fn material_from(out: &FitResult, info: &CaptureInfo, q: &Quality) -> Material {
     let maps = &out.maps;
     Material {
         name: info.sample.clone(),
@@ -47,7 +46,11 @@ pub fn material_from(out: &FitOutcome, info: &CaptureInfo, q: &Quality) -> Mater
         flags: maps.flags.clone(),
         ndf: Some(maps.tables.clone()),
         ndf_kind: if out.partial.is_some() { NdfKind::Synthesized } else { NdfKind::Partial },
-        partial: out.partial.clone(),
+        partial: out.partial.as_ref().map(|p| material::PartialFit {
+            tables: p.tables.clone(),
+            ks: p.ks.clone(),
+            eta: p.eta.clone(),
+        }),
         models: out
             .models
             .iter()
@@ -149,7 +152,7 @@ async fn fit_and_write(
     rep.stage("fit", format!("{} points in {:.1} s after the last frame", out.maps.len(), out.timings.points_s));
     let mut m = material_from(&out, info, q);
     if let (Some(p), Some(prov)) = (&report.partial, m.provenance.as_object_mut()) {
-        prov.insert("partial_capture".into(), p.clone());
+        prov.insert("partial_capture".into(), serde_json::to_value(p)?);
     }
     let m = std::sync::Arc::new(m);
     let dir = root.join("material");
@@ -193,20 +196,25 @@ async fn fit_and_write(
         );
     }
     report.time("fit_total_after_capture_s", t.elapsed().as_secs_f64());
-    report.fit = serde_json::json!({
-        "points": out.maps.len(),
-        "flags": flag_counts(&out.maps.flags),
-        "samples": out.census,
-        "sample_store_mb": out.sample_bytes as f64 / 1e6,
-        "ndf_tables_mb": out.maps.tables.bytes() as f64 / 1e6,
-        "material_disk_mb": material::io::disk_bytes(&dir) as f64 / 1e6,
-        "synthesis": out.synth,
-        "analytic": out.models.iter().map(|f| serde_json::json!({
-            "model": f.model.name(),
-            "seconds": f.seconds,
-            "mean_residual": f.residual.iter().filter(|r| r.is_finite()).sum::<f32>() / f.residual.len().max(1) as f32,
-        })).collect::<Vec<_>>(),
-        "model_choice": out.selection.as_ref().map(|s| &s.summary),
+    report.fit = Some(crate::report::FitReport {
+        points: out.maps.len(),
+        flags: flag_counts(&out.maps.flags),
+        samples: out.census,
+        sample_store_mb: out.sample_bytes as f64 / 1e6,
+        ndf_tables_mb: out.maps.tables.bytes() as f64 / 1e6,
+        material_disk_mb: material::io::disk_bytes(&dir) as f64 / 1e6,
+        synthesis: out.synth.clone(),
+        analytic: out
+            .models
+            .iter()
+            .map(|f| crate::report::AnalyticReport {
+                model: f.model.name().to_string(),
+                seconds: f.seconds,
+                mean_residual: f.residual.iter().flatten().sum::<f32>() / f.residual.len().max(1) as f32,
+                points_without_fit: f.residual.iter().filter(|r| r.is_none()).count(),
+            })
+            .collect(),
+        model_choice: out.selection.as_ref().map(|s| s.summary.clone()),
     });
     rep.stage("fit", format!("material written to {}", dir.display()));
     let t = Instant::now();
@@ -234,7 +242,7 @@ fn write_renders(
     rep: &mut Reporter,
     stop: &dyn Fn() -> bool,
 ) -> Result<Vec<PathBuf>> {
-    let truth = crate::capture::ground_truth(info)?;
+    let truth = crate::session::ground_truth(info)?;
     crate::renders::write_previews(&root.join("renders"), m, truth, PREVIEW_PX, rep, stop)
 }
 
@@ -268,7 +276,7 @@ pub async fn refit(
     let stored: std::collections::HashSet<u32> = entries
         .iter()
         .filter_map(|e| match e.frame {
-            store::FrameKind::Shot { index, .. } => Some(index),
+            store::FrameKind::Shot(shot) => Some(shot.index),
             store::FrameKind::Dark { .. } => None,
         })
         .collect();
@@ -301,7 +309,7 @@ pub async fn refit(
     let mut info = info;
     if missing > 0 {
         info.status = store::CaptureStatus::Interrupted;
-        report.partial = Some(serde_json::json!({ "planned_shots": planned, "stored_shots": stored.len() }));
+        report.partial = Some(crate::report::PartialReport { planned_shots: planned, stored_shots: stored.len() });
     }
     let m = finish_fit(job, &info, &q, dir, rep, &mut report, stop).await?;
     report.peak_memory_mb = crate::report::peak_memory_mb();

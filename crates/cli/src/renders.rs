@@ -16,8 +16,10 @@ use render::scene::{EnvMap, Light, dir_from};
 use render::{Image, Scene};
 use setup::SampleArea;
 
-use crate::eval::EVAL_DISTANCE_MM;
 use crate::progress::Reporter;
+
+/// Distance of the evaluation camera and lights from the sample centre.
+pub const EVAL_DISTANCE_MM: f32 = 400.0;
 
 /// How a render is lit.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -57,8 +57,8 @@ fn capture_exe() -> Result<PathBuf> {
     Ok(p)
 }
 
-fn seconds(report: &serde_json::Value, key: &str) -> f64 {
-    report["timings"][key].as_f64().unwrap_or(0.0)
+fn seconds(report: &crate::report::Report, key: &str) -> f64 {
+    report.timings.get(key).copied().unwrap_or(0.0)
 }
 
 /// Run the sweep.
@@ -93,7 +93,7 @@ pub fn run(sample: &str, out: &Path, settings: &str, rep: &mut Reporter) -> Resu
         if !status.success() {
             bail!("the capture for setting {name} failed ({status}); see above");
         }
-        let report: serde_json::Value = serde_json::from_slice(&std::fs::read(dir.join("report.json"))?)?;
+        let report = crate::report::read(&dir)?;
         let ev = evaluate(&dir, &EvalOptions { render_px: 96, ..Default::default() }, rep)?;
         let measured = ev.models.get("synthesized").or_else(|| ev.models.get("partial"));
         let capture_seconds = seconds(&report, "capture_s");
@@ -105,7 +105,7 @@ pub fn run(sample: &str, out: &Path, settings: &str, rep: &mut Reporter) -> Resu
             capture_seconds,
             fit_seconds,
             total_seconds: capture_seconds + fit_seconds,
-            peak_memory_mb: report["peak_memory_mb"].as_f64(),
+            peak_memory_mb: report.peak_memory_mb,
             render_rel_rmse: measured.and_then(|m| m.render_rel_rmse),
             ndf_rel_l2_full: measured.and_then(|m| m.ndf_rel_l2_full),
             models: serde_json::to_value(

@@ -11,6 +11,15 @@
 //!    partial NDF by splatting and push-pull ([`pushpull`]), the masking
 //!    term by integration, `k_s` and the Fresnel index; [`points`] runs it
 //!    over the grid in parallel.
+//! 3. [`synth`]: microfacet synthesis completes each point's partial NDF
+//!    from other points' rotated NDFs (clustering, pruning, approximate
+//!    nearest neighbours); the completed points are refitted.
+//! 4. [`analytic`] and [`select`]: analytic models fitted per point and
+//!    the per-point choice among them and the table.
+//!
+//! [`pipeline`] runs these stages in their one order; every caller (the
+//! streaming fit, `refl fit`, the hold-out refit, benchmarks, tests) goes
+//! through it. [`calibrate`] solves the white scan's calibration.
 //!
 //! Conventions are those of the `brdf` crate: local frame with the normal
 //! on `+z` and `x` along the gantry, `i` toward the light, `o` toward the
@@ -24,6 +33,7 @@ pub mod context;
 pub mod diffuse;
 pub mod ingest;
 pub mod partial;
+pub mod pipeline;
 pub mod points;
 pub mod pushpull;
 pub mod samples;
@@ -34,6 +44,7 @@ pub mod synth;
 pub use context::{FitContext, FitInputs};
 pub use ingest::Ingest;
 pub use partial::{DEFAULT_ETA, PointFit, PointSamples, Sample, point_flag};
+pub use pipeline::{FitError, FitResult, PartialMaps, Pipeline, Stages, Timings};
 pub use points::{PointMaps, fit_points};
 pub use samples::SampleStore;
 pub use settings::FitSettings;

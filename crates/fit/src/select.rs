@@ -26,6 +26,10 @@ pub const ACCEPT_RATIO: f32 = 1.3;
 /// ... or when it is no more than 5% worse than the tabulated model.
 pub const AS_GOOD_AS: f32 = 1.05;
 
+/// Smallest noise level a residual is divided by (a point whose samples
+/// carry no noise at all, as in noiseless tests, is not divided by zero).
+const NOISE_FLOOR: f32 = 1e-12;
+
 /// Class codes as stored in the material (`material::Choice`).
 pub const DIFFUSE: u8 = 0;
 pub const ISOTROPIC: u8 = 1;
@@ -55,28 +59,34 @@ pub struct Selection {
     pub summary: SelectionSummary,
 }
 
-fn mean(v: impl Iterator<Item = f32>) -> f32 {
+/// Mean of the finite values; `None` when there are none.
+fn mean(v: impl Iterator<Item = Option<f32>>) -> Option<f32> {
     let (mut s, mut n) = (0.0f64, 0usize);
-    for x in v {
+    for x in v.flatten() {
         if x.is_finite() {
             s += x as f64;
             n += 1;
         }
     }
-    if n == 0 { f32::INFINITY } else { (s / n as f64) as f32 }
+    (n > 0).then(|| (s / n as f64) as f32)
+}
+
+/// Orders means with a missing one (no point fitted) last.
+fn worst_last(m: Option<f32>) -> f32 {
+    m.unwrap_or(f32::MAX)
 }
 
 /// Choose per cluster; `None` if neither an isotropic nor an anisotropic
 /// analytic fit is available.
 pub fn select(maps: &PointMaps, ev: &Evidence, fits: &[ModelFit]) -> Option<Selection> {
     let n = maps.len();
-    let total = |f: &ModelFit| mean(f.residual.iter().copied());
+    let total = |f: &ModelFit| worst_last(mean(f.residual.iter().copied()));
     let pick = |cands: &[AnalyticModel]| -> Option<&ModelFit> {
         fits.iter().filter(|f| cands.contains(&f.model)).min_by(|a, b| total(a).total_cmp(&total(b)))
     };
     let iso = pick(&[AnalyticModel::WardIso, AnalyticModel::CookTorrance, AnalyticModel::Phong])?;
     let aniso = pick(&[AnalyticModel::WardAniso, AnalyticModel::GgxAniso, AnalyticModel::AshikhminShirley])?;
-    let ratio = |r: f32, p: usize| r / ev.noise[p].max(1e-12);
+    let ratio = |r: Option<f32>, p: usize| r.map(|r| r / ev.noise[p].max(NOISE_FLOOR));
     let mut choice = vec![DIFFUSE; n];
     let mut members: Vec<Vec<usize>> = vec![Vec::new(); ev.clusters];
     for p in 0..n {
@@ -91,8 +101,10 @@ pub fn select(maps: &PointMaps, ev: &Evidence, fits: &[ModelFit]) -> Option<Sele
         }
         let r_iso = mean(m.iter().map(|&p| ratio(iso.residual[p], p)));
         let r_aniso = mean(m.iter().map(|&p| ratio(aniso.residual[p], p)));
-        let r_tab = mean(m.iter().map(|&p| ratio(ev.tabulated[p], p)));
-        let ok = |r: f32| r <= ACCEPT_RATIO || r <= r_tab * AS_GOOD_AS;
+        let r_tab = mean(m.iter().map(|&p| ratio(Some(ev.tabulated[p]), p)));
+        let ok = |r: Option<f32>| {
+            r.is_some_and(|r| r <= ACCEPT_RATIO || r_tab.is_none_or(|t| r <= t * AS_GOOD_AS))
+        };
         let class = if ok(r_iso) {
             ISOTROPIC
         } else if ok(r_aniso) {
@@ -119,12 +131,12 @@ pub fn select(maps: &PointMaps, ev: &Evidence, fits: &[ModelFit]) -> Option<Sele
         summary.points[c] += 1;
         summary.bytes_chosen += bytes[c];
         let r = match choice[p] {
-            DIFFUSE => f32::NAN,
+            DIFFUSE => None,
             ISOTROPIC => ratio(iso.residual[p], p),
             ANISOTROPIC => ratio(aniso.residual[p], p),
-            _ => ratio(ev.tabulated[p], p),
+            _ => ratio(Some(ev.tabulated[p]), p),
         };
-        if r.is_finite() {
+        if let Some(r) = r.filter(|r| r.is_finite()) {
             sums[c] += r as f64;
         }
     }

@@ -266,3 +266,22 @@ mod tests {
         assert!(!img.clipped[15]);
     }
 }
+
+/// What a camera accepted, read back after setting it: recorded in the
+/// capture's metadata (`capture.json`), so a capture says what the camera
+/// really did.
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct AppliedSettings {
+    pub device: String,
+    pub driver: String,
+    pub format: String,
+    pub width: u32,
+    pub height: u32,
+    pub bit_depth: u8,
+    pub exposure_us: u32,
+    pub gain: f32,
+    /// Every control set, with the value read back.
+    pub controls: std::collections::BTreeMap<String, i64>,
+    /// Warnings for the operator (e.g. a non-radiometric format).
+    pub warnings: Vec<String>,
+}

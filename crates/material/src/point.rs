@@ -36,6 +36,29 @@ impl PointMaterial {
         PointMaterial::Microfacet(Microfacet { kd, ks, ndf, fresnel })
     }
 
+    /// A fitted point's BRDF from its maps: the fitted microfacet model
+    /// `kd/pi + ks D F_rel / (4 sigma sigma)` with relative Fresnel of index
+    /// `eta`, or diffuse alone when it has no specular albedo or no NDF.
+    /// The one way fitted maps become a BRDF (material views, hold-out
+    /// prediction, tests).
+    pub fn fitted(kd: Rgb, ks: Rgb, eta: f32, ndf: Option<Arc<dyn Ndf>>) -> Self {
+        match ndf {
+            Some(ndf) if ks.max_element() > 0.0 => {
+                Self::microfacet(kd, ks, ndf, Fresnel::DielectricRelative { eta })
+            }
+            _ => PointMaterial::Diffuse { kd },
+        }
+    }
+
+    /// The NDF a fitted table describes (with its masking from `op`), or
+    /// `None` for a table that holds no mass.
+    pub fn table_ndf(table: brdf::ndf::NdfTable, op: &brdf::ndf::MaskingOperator) -> Option<Arc<dyn Ndf>> {
+        if !(table.integral_cos() > 0.0) {
+            return None;
+        }
+        Some(Arc::new(brdf::ndf::TabulatedNdf::new(table, op)))
+    }
+
     /// Diffuse albedo.
     pub fn kd(&self) -> Rgb {
         match self {

@@ -2,8 +2,7 @@
 
 use std::sync::{Arc, OnceLock};
 
-use brdf::fresnel::Fresnel;
-use brdf::ndf::{MaskingOperator, Ndf, TabulatedNdf};
+use brdf::ndf::{MaskingOperator, Ndf};
 use brdf::params::AnalyticModel;
 use glam::{Vec2, Vec3};
 
@@ -88,12 +87,7 @@ impl MaterialView {
                 } else {
                     self.material.ndf.as_ref()
                 }?;
-                let t = set.get(p);
-                if !(t.integral_cos() > 0.0) {
-                    return None;
-                }
-                let op = self.masking.as_ref()?;
-                Some(Arc::new(TabulatedNdf::new(t, op)) as Arc<dyn Ndf>)
+                PointMaterial::table_ndf(set.get(p), self.masking.as_ref()?)
             })
             .clone()
     }
@@ -108,13 +102,7 @@ impl MaterialView {
                 (Some(pf), true) => (pf.ks[p], pf.eta[p]),
                 _ => (m.ks[p], m.eta[p]),
             };
-            let ks = Vec3::from(ks);
-            match self.table(p, partial) {
-                Some(ndf) if ks.max_element() > 0.0 => {
-                    PointMaterial::microfacet(kd, ks, ndf, Fresnel::DielectricRelative { eta })
-                }
-                _ => PointMaterial::Diffuse { kd },
-            }
+            PointMaterial::fitted(kd, Vec3::from(ks), eta, self.table(p, partial))
         };
         let analytic = |am: AnalyticModel| match m.models.get(am.name()).and_then(|mm| am.build(mm.point(p))) {
             Some(b) => PointMaterial::Model(b),

@@ -19,15 +19,9 @@ use tokio::time::Instant;
 
 use crate::mcu::{Connector, Rig, RigError};
 
-/// One exposure of the plan.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-pub struct Shot {
-    /// Position in the plan (0-based, dense).
-    pub index: u32,
-    pub step: u32,
-    pub led: u8,
-    pub position_um: i32,
-}
+/// One exposure of the plan: the plan's own shot type, carried unchanged
+/// from the plan through the sequencer to the store.
+pub use setup::PlannedShot as Shot;
 
 /// Takes exposures and receives the confirmed ones.
 pub trait Exposer {

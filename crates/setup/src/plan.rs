@@ -38,7 +38,7 @@ pub enum PlanError {
 }
 
 /// One frame of the plan.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
 pub struct PlannedShot {
     /// Dense index over all shots.
     pub index: u32,

@@ -218,8 +218,8 @@ impl CaptureDir {
             match r {
                 Ok(()) if seen.insert(e.frame) => {
                     match e.frame {
-                        FrameKind::Shot { index, .. } => {
-                            state.done_shots.insert(index);
+                        FrameKind::Shot(shot) => {
+                            state.done_shots.insert(shot.index);
                         }
                         FrameKind::Dark { .. } => state.dark_frames.push(e.frame),
                     }
@@ -281,8 +281,8 @@ impl CaptureDir {
     }
 
     /// Replace the recorded camera settings (after configuring the device).
-    pub fn set_camera(&mut self, camera: serde_json::Value) -> Result<(), StoreError> {
-        self.info.camera = camera;
+    pub fn set_camera(&mut self, camera: frame::AppliedSettings) -> Result<(), StoreError> {
+        self.info.camera = Some(camera);
         self.rewrite_info()
     }
 

@@ -2,7 +2,7 @@
 
 use frame::{FrameMeta, Layout};
 use serde::{Deserialize, Serialize};
-use setup::{Calibration, CapturePlan, PointGrid, RigGeometry};
+use setup::{Calibration, CapturePlan, PlannedShot, PointGrid, RigGeometry};
 
 /// Version of `capture.json` and `manifest.jsonl`.
 pub const CAPTURE_FORMAT_VERSION: u32 = 1;
@@ -55,11 +55,16 @@ pub struct CaptureInfo {
     /// Where the calibration came from (its directory), if stored.
     pub calibration_source: Option<String>,
     pub sensor: SensorInfo,
-    /// The camera's settings as read back from the device.
-    pub camera: serde_json::Value,
+    /// The camera's settings as read back from the device (`null` until
+    /// the camera is configured).
+    pub camera: Option<frame::AppliedSettings>,
     /// The point grid the material is fitted on.
     pub grid: PointGrid,
-    /// Quality preset and knobs, as the operator chose them.
+    /// Quality preset and knobs, as the operator chose them: the
+    /// application's settings type (`cli::presets::Quality`), which reads
+    /// them back on resume and refit; the fixture test
+    /// (`tests/operator.rs`) keeps a capture of this format version
+    /// readable.
     pub settings: serde_json::Value,
     pub simulated: Option<SimInfo>,
 }
@@ -68,8 +73,9 @@ pub struct CaptureInfo {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case", tag = "kind")]
 pub enum FrameKind {
-    /// A planned shot: one LED alone at one gantry position and exposure.
-    Shot { index: u32, step: u32, led: u8, exposure: u8, position_um: i32 },
+    /// A planned shot: one LED alone at one gantry position and exposure
+    /// (its fields inline in the JSON, beside `kind`).
+    Shot(PlannedShot),
     /// All LEDs off (black level and fixed pattern).
     Dark { exposure: u8, n: u32 },
 }
@@ -77,7 +83,7 @@ pub enum FrameKind {
 impl FrameKind {
     pub fn file_name(&self) -> String {
         match self {
-            FrameKind::Shot { step, led, exposure, .. } => format!("s{step:03}_l{led:02}_e{exposure}.png"),
+            FrameKind::Shot(s) => format!("s{:03}_l{:02}_e{}.png", s.step, s.led, s.exposure),
             FrameKind::Dark { exposure, n } => format!("dark_e{exposure}_{n:03}.png"),
         }
     }

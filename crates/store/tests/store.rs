@@ -19,7 +19,7 @@ fn info() -> CaptureInfo {
         calibration_source: None,
         geometry: g,
         sensor: SensorInfo { bit_depth: 12, e_per_dn: 3.0 },
-        camera: serde_json::json!({}),
+        camera: None,
         grid: PointGrid { cols: 8, rows: 8 },
         settings: serde_json::json!({}),
         simulated: None,
@@ -45,7 +45,7 @@ fn frame(seed: u16) -> Frame {
 }
 
 fn shot(i: u32) -> FrameKind {
-    FrameKind::Shot { index: i, step: i / 2, led: (i % 2) as u8, exposure: 0, position_um: 0 }
+    FrameKind::Shot(setup::PlannedShot { index: i, step: i / 2, led: (i % 2) as u8, exposure: 0, position_um: 0 })
 }
 
 #[test]

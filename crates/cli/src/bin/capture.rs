@@ -87,14 +87,17 @@ struct Args {
     /// Run in this process even when a capture daemon (`refl daemon`) is running.
     #[arg(long)]
     no_daemon: bool,
+    /// Log lines as text or as JSON objects (for the journal).
+    #[arg(long, value_enum, default_value = "text")]
+    log_format: cli::LogFormat,
     /// Stop after this many shots, keeping everything (for demonstrations of --resume).
     #[arg(long, hide = true)]
     stop_after: Option<u64>,
 }
 
 fn main() -> ExitCode {
-    cli::init_logging();
     let args = Args::parse();
+    cli::init_logging(args.log_format);
     if args.list_samples {
         for (n, d) in sim::materials::BUILTIN {
             println!("{n:14} {d}");
@@ -122,7 +125,7 @@ fn main() -> ExitCode {
             let store = cli::calib::CalibrationStore::new(args.calib_dir.as_deref(), &rf.name)?;
             let c = tokio::select! {
                 c = capture::calibrate(&rf, &g, &store, &mut rep, which == "white") => c?,
-                _ = stop.wait_for(|s| *s) => return Err(capture::Interrupted.into()),
+                _ = stop.wait_for(|s| *s) => return Err(cli::Interrupted.into()),
             };
             rep.emit(cli::progress::Event::Done { summary: serde_json::json!({ "calibration": c.id }) });
             return anyhow::Ok(0);

@@ -11,6 +11,9 @@ use clap::{Parser, Subcommand};
 struct Args {
     #[command(subcommand)]
     cmd: Cmd,
+    /// Log lines as text or as JSON objects (for the journal).
+    #[arg(long, global = true, value_enum, default_value = "text")]
+    log_format: cli::LogFormat,
 }
 
 #[derive(Debug, Subcommand)]
@@ -271,8 +274,8 @@ fn import(rgl: bool, a: &ImportArgs) -> anyhow::Result<()> {
 }
 
 fn main() -> ExitCode {
-    cli::init_logging();
     let args = Args::parse();
+    cli::init_logging(args.log_format);
     let rt = match tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build() {
         Ok(rt) => rt,
         Err(e) => {

@@ -68,8 +68,10 @@ pub struct ModelFit {
     pub model: AnalyticModel,
     /// `n_points x model.n_params()`.
     pub params: Vec<f32>,
-    /// Per point: RMS cosine-weighted luminance residual.
-    pub residual: Vec<f32>,
+    /// Per point: RMS cosine-weighted luminance residual; `None` where the
+    /// model could not be built from the fitted parameters (outside its
+    /// domain), so the point has no usable fit of this model.
+    pub residual: Vec<Option<f32>>,
     pub seconds: f64,
 }
 
@@ -216,7 +218,7 @@ fn solve_amplitudes(bd: &[f32], bs: &[f32], samples: &[Sample]) -> ([f32; 3], [f
 /// diffuse or specular term is not linear in its amplitude (Ashikhmin-
 /// Shirley's `(1 - Rs)` factor and Schlick's Fresnel of `Rs`) are solved by
 /// a fixed-point iteration on the amplitude.
-fn point_amplitudes(model: AnalyticModel, shape: &[f32], samples: &[Sample], o: Vec3) -> (Vec<f32>, f32) {
+fn point_amplitudes(model: AnalyticModel, shape: &[f32], samples: &[Sample], o: Vec3) -> (Vec<f32>, Option<f32>) {
     let nonlinear = model == AnalyticModel::AshikhminShirley;
     let mut ks_prev = [0.05f32; 3];
     let mut kd = [0.0f32; 3];
@@ -228,7 +230,7 @@ fn point_amplitudes(model: AnalyticModel, shape: &[f32], samples: &[Sample], o: 
         k = lum(ks_prev).max(1e-4);
         let mut p = vec![0.0f32, 0.0, 0.0, k, k, k];
         p.extend_from_slice(shape);
-        let Some(sm) = model.build(&p) else { return (vec![0.0; model.n_params()], f32::INFINITY) };
+        let Some(sm) = model.build(&p) else { return (vec![0.0; model.n_params()], None) };
         let dm = if nonlinear {
             p[0] = 1.0;
             p[1] = 1.0;
@@ -260,10 +262,7 @@ fn point_amplitudes(model: AnalyticModel, shape: &[f32], samples: &[Sample], o: 
             params[c] *= (1.0 - k) / (1.0 - params[3 + c]).max(0.05);
         }
     }
-    let residual = match model.build(&params) {
-        Some(m) => rms_residual(samples, o, |i, o| lum(m.eval(i, o).to_array())),
-        None => f32::INFINITY,
-    };
+    let residual = model.build(&params).map(|m| rms_residual(samples, o, |i, o| lum(m.eval(i, o).to_array())));
     (params, residual)
 }
 
@@ -407,7 +406,7 @@ pub fn fit_model(model: AnalyticModel, maps: &PointMaps, ev: &Evidence) -> Model
         .collect();
     let default_shape =
         shape::shape(model, &shape::init(model, &Moments { alpha_x: 0.3, alpha_y: 0.3, angle_rad: 0.0 }, eta));
-    let fits: Vec<(Vec<f32>, f32)> = (0..n)
+    let fits: Vec<(Vec<f32>, Option<f32>)> = (0..n)
         .into_par_iter()
         .map(|p| {
             let c = ev.cluster[p] as usize;
@@ -420,9 +419,7 @@ pub fn fit_model(model: AnalyticModel, maps: &PointMaps, ev: &Evidence) -> Model
                 let mut params = maps.kd[p].to_vec();
                 params.extend_from_slice(&[0.0, 0.0, 0.0]);
                 params.extend_from_slice(&default_shape);
-                let r = model
-                    .build(&params)
-                    .map_or(f32::INFINITY, |m| rms_residual(&samples, ev.view[p], |i, o| lum(m.eval(i, o).to_array())));
+                let r = model.build(&params).map(|m| rms_residual(&samples, ev.view[p], |i, o| lum(m.eval(i, o).to_array())));
                 (params, r)
             }
         })
@@ -431,7 +428,7 @@ pub fn fit_model(model: AnalyticModel, maps: &PointMaps, ev: &Evidence) -> Model
     let mut residual = Vec::with_capacity(n);
     for (pp, r) in fits {
         params.extend(pp.into_iter().map(|v| if v.is_finite() { v } else { 0.0 }));
-        residual.push(r);
+        residual.push(r.filter(|r| r.is_finite()));
     }
     ModelFit { model, params, residual, seconds: t0.elapsed().as_secs_f64() }
 }

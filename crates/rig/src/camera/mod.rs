@@ -12,7 +12,6 @@ pub mod pixel;
 #[cfg(target_os = "linux")]
 pub mod v4l2;
 
-use std::collections::BTreeMap;
 use std::future::Future;
 use std::time::Duration;
 
@@ -35,23 +34,7 @@ pub struct CameraSettings {
     pub settle_frames: u32,
 }
 
-/// What the device accepted, read back after setting it: recorded in the
-/// capture's metadata, so a capture says what the camera really did.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct AppliedSettings {
-    pub device: String,
-    pub driver: String,
-    pub format: String,
-    pub width: u32,
-    pub height: u32,
-    pub bit_depth: u8,
-    pub exposure_us: u32,
-    pub gain: f32,
-    /// Every control set, with the value read back.
-    pub controls: BTreeMap<String, i64>,
-    /// Warnings for the operator (e.g. a non-radiometric format).
-    pub warnings: Vec<String>,
-}
+pub use frame::AppliedSettings;
 
 #[derive(Debug, Error)]
 pub enum CameraError {
@@ -69,7 +52,7 @@ pub enum CameraError {
 
 /// Frames a camera threw away since it was configured, by reason; each
 /// was replaced by a later frame, so nothing is missing from a capture.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Discards {
     /// The driver flagged the buffer as damaged.
     pub error_flagged: u64,

@@ -1,0 +1,294 @@
+//! The fit's stages in their one order. Every fit runs through here: the
+//! streaming fit beside a capture, `refl fit`, the hold-out refit of
+//! `refl eval`, the benchmarks and the test support.
+//!
+//! 1. **Ingest**: frames become reflectance samples ([`Pipeline::push_dark`],
+//!    [`Pipeline::push_shot`]); or a caller hands over a [`SampleStore`] it
+//!    made otherwise ([`run_stages`]).
+//! 2. **Per point**: diffuse/specular split, partial NDF, masking, `k_s`,
+//!    Fresnel ([`crate::points::fit_points`]).
+//! 3. **Synthesis** (optional): each point's partial NDF completed from
+//!    other points' rotated NDFs, then every completed point refitted with
+//!    its completed table ([`synthesis_stage`]).
+//! 4. **Analytic fits and model choice** (optional): every analytic model
+//!    fitted per point, then the per-point choice ([`analytic_stage`]).
+//!
+//! Between stages (and between analytic models) the caller's `stop` is
+//! polled; a stop ends the run with [`FitError::Stopped`].
+
+use std::time::Instant;
+
+use brdf::ndf::{MaskingOperator, TableSet};
+use frame::Frame;
+use serde::Serialize;
+use setup::PlannedShot;
+use thiserror::Error;
+
+use crate::analytic::{AnalyticSettings, ModelFit};
+use crate::samples::{Census, SampleStore};
+use crate::select::Selection;
+use crate::synth::{SynthSettings, SynthStats};
+use crate::{FitContext, FitSettings, Ingest, PointMaps, point_flag};
+
+/// The optional stages after the per-point fit.
+#[derive(Clone, Debug, Default)]
+pub struct Stages {
+    pub synth: Option<SynthSettings>,
+    pub analytic: Option<AnalyticSettings>,
+    /// Return the sample store with the result (hold-out prediction,
+    /// tests); otherwise it is freed as soon as the last stage is done.
+    pub keep_samples: bool,
+}
+
+/// Wall time of each stage, seconds.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct Timings {
+    /// Ingesting frames (overlaps the capture when streaming).
+    pub ingest_s: f64,
+    /// From the last frame to the end of the per-point stage.
+    pub points_s: f64,
+    pub synthesis_s: f64,
+    pub analytic_s: f64,
+    pub selection_s: f64,
+}
+
+/// The per-point fit as it was before synthesis replaced its tables.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PartialMaps {
+    pub tables: TableSet,
+    pub ks: Vec<[f32; 3]>,
+    pub eta: Vec<f32>,
+}
+
+/// Everything a fit produced.
+#[derive(Debug)]
+pub struct FitResult {
+    /// The final per-point maps (synthesized and refitted when synthesis ran).
+    pub maps: PointMaps,
+    pub census: Census,
+    /// Bytes the sample store held.
+    pub sample_bytes: usize,
+    pub frames: u64,
+    pub timings: Timings,
+    pub settings: FitSettings,
+    /// The per-point fit before synthesis, when synthesis ran.
+    pub partial: Option<PartialMaps>,
+    pub synth: Option<SynthStats>,
+    pub models: Vec<ModelFit>,
+    pub selection: Option<Selection>,
+    /// The samples, when [`Stages::keep_samples`] asked for them.
+    pub samples: Option<SampleStore>,
+    /// Set when far fewer samples were usable than the geometry allows.
+    pub few_samples: Option<String>,
+}
+
+/// Why a fit produced nothing.
+#[derive(Debug, Error)]
+pub enum FitError {
+    #[error("the fit was stopped")]
+    Stopped,
+    #[error(
+        "no usable samples: {0}; check the calibration (LED intensities, black level) and the exposure"
+    )]
+    NoSamples(String),
+}
+
+/// Fewer usable samples than this fraction of those the geometry allows
+/// is reported in [`FitResult::few_samples`] (too dark, saturated or
+/// missing frames).
+pub const FEW_USABLE: f64 = 0.1;
+
+/// Refuse a fit with nothing to fit; describe a thin one.
+pub fn check_census(c: &Census, total: usize) -> Result<Option<String>, FitError> {
+    let allowed = (total as u64).saturating_sub(c.occluded).max(1);
+    let why = format!(
+        "{} of {allowed} samples the geometry allows are usable ({} missing frames, {} saturated, {} too dark)",
+        c.usable, c.missing, c.saturated, c.dim
+    );
+    if c.usable == 0 {
+        return Err(FitError::NoSamples(why));
+    }
+    Ok(((c.usable as f64) < FEW_USABLE * allowed as f64).then_some(why))
+}
+
+/// A fit fed frame by frame.
+#[derive(Debug)]
+pub struct Pipeline<'a> {
+    ctx: &'a FitContext,
+    ingest: Ingest<'a>,
+    settings: FitSettings,
+    stages: Stages,
+    ingest_s: f64,
+    last_frame: Instant,
+}
+
+impl<'a> Pipeline<'a> {
+    pub fn new(ctx: &'a FitContext, settings: FitSettings, stages: Stages) -> Self {
+        Self { ctx, ingest: Ingest::new(ctx), settings, stages, ingest_s: 0.0, last_frame: Instant::now() }
+    }
+
+    /// A dark frame (all LEDs off) of exposure `exposure`.
+    pub fn push_dark(&mut self, exposure: u8, frame: &Frame) {
+        let t = Instant::now();
+        self.ingest.push_dark(exposure, frame);
+        self.ingested(t);
+    }
+
+    /// A planned shot's frame.
+    pub fn push_shot(&mut self, shot: &PlannedShot, frame: &Frame) {
+        let t = Instant::now();
+        self.ingest.push_shot(shot, frame);
+        self.ingested(t);
+    }
+
+    fn ingested(&mut self, started: Instant) {
+        self.ingest_s += started.elapsed().as_secs_f64();
+        self.last_frame = Instant::now();
+    }
+
+    /// No more frames: run the stages.
+    pub fn finish(self, stop: &dyn Fn() -> bool) -> Result<FitResult, FitError> {
+        let frames = self.ingest.frames;
+        let store = self.ingest.finish();
+        let mut r = run_from(self.ctx, store, self.settings, &self.stages, stop, self.last_frame)?;
+        r.frames = frames;
+        r.timings.ingest_s = self.ingest_s;
+        Ok(r)
+    }
+}
+
+/// Run the stages on samples made elsewhere (benchmarks, tests).
+pub fn run_stages(
+    ctx: &FitContext,
+    store: SampleStore,
+    settings: FitSettings,
+    stages: &Stages,
+    stop: &dyn Fn() -> bool,
+) -> Result<FitResult, FitError> {
+    run_from(ctx, store, settings, stages, stop, Instant::now())
+}
+
+fn run_from(
+    ctx: &FitContext,
+    store: SampleStore,
+    settings: FitSettings,
+    stages: &Stages,
+    stop: &dyn Fn() -> bool,
+    started: Instant,
+) -> Result<FitResult, FitError> {
+    let stopped = || if stop() { Err(FitError::Stopped) } else { Ok(()) };
+    stopped()?;
+    let census = store.census();
+    let few_samples = check_census(&census, store.n_points() * store.n_lights())?;
+    if let Some(w) = &few_samples {
+        tracing::warn!("few usable samples: {w}");
+    }
+    let op = MaskingOperator::new(settings.grid);
+    let mut maps = crate::points::fit_points(ctx, &store, &settings, &op);
+    let mut timings = Timings { points_s: started.elapsed().as_secs_f64(), ..Timings::default() };
+    stopped()?;
+    let (partial, synth) = match &stages.synth {
+        Some(ss) => {
+            let t = Instant::now();
+            let (partial, stats) = synthesis_stage(ctx, &store, &mut maps, ss, &settings, &op);
+            timings.synthesis_s = t.elapsed().as_secs_f64();
+            (Some(partial), Some(stats))
+        }
+        None => (None, None),
+    };
+    let (models, selection) = match &stages.analytic {
+        Some(a) if !a.models.is_empty() => {
+            let a = analytic_stage(ctx, &store, &maps, &settings, a, stop)?;
+            timings.analytic_s = a.analytic_s;
+            timings.selection_s = a.selection_s;
+            (a.models, a.selection)
+        }
+        _ => (Vec::new(), None),
+    };
+    let sample_bytes = store.bytes();
+    let samples = stages.keep_samples.then_some(store);
+    Ok(FitResult {
+        maps,
+        census,
+        sample_bytes,
+        frames: 0,
+        timings,
+        settings,
+        partial,
+        synth,
+        models,
+        selection,
+        samples,
+        few_samples,
+    })
+}
+
+/// Synthesis: complete every point's partial table from other points'
+/// rotated tables, then refit the points that gained cells with their
+/// completed table. Returns the maps as they were before.
+pub fn synthesis_stage(
+    ctx: &FitContext,
+    store: &SampleStore,
+    maps: &mut PointMaps,
+    synth: &SynthSettings,
+    settings: &FitSettings,
+    op: &MaskingOperator,
+) -> (PartialMaps, SynthStats) {
+    let eligible: Vec<bool> = maps.flags.iter().map(|f| f & point_flag::NO_SPECULAR == 0).collect();
+    let out = crate::synth::synthesize(&maps.tables, &eligible, synth);
+    let partial = PartialMaps { tables: maps.tables.clone(), ks: maps.ks.clone(), eta: maps.eta.clone() };
+    let added: Vec<bool> = out.mass_factor.iter().map(|&k| k != 1.0).collect();
+    crate::points::refit_completed(ctx, store, maps, &out.tables, &added, settings, op);
+    (partial, out.stats)
+}
+
+/// What [`analytic_stage`] produced.
+#[derive(Debug)]
+pub struct AnalyticOutcome {
+    pub models: Vec<ModelFit>,
+    pub selection: Option<Selection>,
+    pub analytic_s: f64,
+    pub selection_s: f64,
+}
+
+/// Fit every analytic model per point, then choose per point among
+/// diffuse, the analytic fits and the table.
+pub fn analytic_stage(
+    ctx: &FitContext,
+    store: &SampleStore,
+    maps: &PointMaps,
+    settings: &FitSettings,
+    a: &AnalyticSettings,
+    stop: &dyn Fn() -> bool,
+) -> Result<AnalyticOutcome, FitError> {
+    let t = Instant::now();
+    let ev = crate::analytic::evidence(ctx, store, maps, settings, a);
+    let mut models = Vec::with_capacity(a.models.len());
+    for &m in &a.models {
+        if stop() {
+            return Err(FitError::Stopped);
+        }
+        models.push(crate::analytic::fit_model(m, maps, &ev));
+    }
+    let analytic_s = t.elapsed().as_secs_f64();
+    let t = Instant::now();
+    let selection = crate::select::select(maps, &ev, &models);
+    Ok(AnalyticOutcome { models, selection, analytic_s, selection_s: t.elapsed().as_secs_f64() })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_fit_without_usable_samples_is_refused_and_a_thin_one_described() {
+        let none = Census { usable: 0, missing: 10, occluded: 5, saturated: 3, dim: 82 };
+        let e = check_census(&none, 100).unwrap_err().to_string();
+        assert!(e.contains("no usable samples") && e.contains("82 too dark"), "{e}");
+        // 5 of the 95 samples the geometry allows: below a tenth.
+        let thin = Census { usable: 5, missing: 0, occluded: 5, saturated: 0, dim: 90 };
+        assert!(check_census(&thin, 100).unwrap().is_some_and(|w| w.contains("5 of 95")));
+        let fine = Census { usable: 60, missing: 0, occluded: 5, saturated: 5, dim: 30 };
+        assert!(check_census(&fine, 100).unwrap().is_none());
+    }
+}
