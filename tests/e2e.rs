@@ -7,7 +7,6 @@
 
 use std::path::Path;
 use std::process::Stdio;
-use std::time::{Duration, Instant};
 
 #[path = "support/lab.rs"]
 mod lab;
@@ -218,20 +217,7 @@ fn the_daemon_runs_one_capture_at_a_time_and_capture_uses_it() {
     use std::os::unix::fs::PermissionsExt;
     let lab = Lab::new();
     let socket = lab.path("daemon.sock");
-    let mut daemon = lab
-        .cmd(REFL)
-        .arg("daemon")
-        .env("REFLECTOMETER_SOCKET", &socket)
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let t = Instant::now();
-    while !socket.exists() {
-        assert!(t.elapsed() < Duration::from_secs(30), "the daemon did not start");
-        assert!(daemon.try_wait().unwrap().is_none(), "the daemon exited");
-        std::thread::sleep(Duration::from_millis(10));
-    }
+    let mut daemon = lab.start_daemon(&socket, Stdio::piped());
     let mode = std::fs::metadata(&socket).unwrap().permissions().mode() & 0o777;
     assert_eq!(mode, 0o660, "socket mode {mode:o}");
 
@@ -407,9 +393,11 @@ fn a_capture_of_this_format_version_still_reads() {
     let fixture = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/fixtures/capture-v1");
     let dir = lab.path("fixture");
     std::fs::create_dir_all(dir.join("frames")).unwrap();
-    for e in ["capture.json", "manifest.jsonl"].iter().map(|n| fixture.join(n)).chain(
-        std::fs::read_dir(fixture.join("frames")).unwrap().map(|e| e.unwrap().path()),
-    ) {
+    for e in ["capture.json", "manifest.jsonl"]
+        .iter()
+        .map(|n| fixture.join(n))
+        .chain(std::fs::read_dir(fixture.join("frames")).unwrap().map(|e| e.unwrap().path()))
+    {
         let rel = e.strip_prefix(&fixture).unwrap();
         std::fs::copy(&e, dir.join(rel)).unwrap();
     }

@@ -66,9 +66,9 @@ fn is_stage(v: &serde_json::Value, stage: &str, detail_starts: &str) -> bool {
     v["event"] == "stage" && v["stage"] == stage && v["detail"].as_str().is_some_and(|d| d.starts_with(detail_starts))
 }
 
-fn sigint(child: &Child) {
+fn signal(child: &Child, sig: i32) {
     // SAFETY: plain kill(2) on our own child's pid.
-    unsafe { libc::kill(child.id() as i32, libc::SIGINT) };
+    unsafe { libc::kill(child.id() as i32, sig) };
 }
 
 /// A child that must end by itself; killed (and the test failed) if it
@@ -155,12 +155,15 @@ fn a_rig_that_stops_answering_ends_with_advice_not_forever() {
     assert!(stderr(&o).contains("power-cycle the controller"), "{}", stderr(&o));
 }
 
-/// Defect 3: a stop request during the fit or the renders ends the process
-/// with 130 and leaves a capture that resumes to its material.
+/// Defect 3: a stop request during the fit (SIGINT) or the renders (SIGHUP,
+/// a closed terminal) ends the process with 130 and leaves a capture that
+/// resumes to its material.
 #[test]
 fn a_stop_during_the_fit_or_the_renders_is_honoured() {
     let lab = Lab::new();
-    for (out, stage, detail) in [("in-fit", "fit", "per-point"), ("in-render", "render", "")] {
+    for (out, stage, detail, sig) in
+        [("in-fit", "fit", "per-point", libc::SIGINT), ("in-render", "render", "", libc::SIGHUP)]
+    {
         let mut child = lab
             .capture_cmd_sized("satin", out, 12, 40, 96)
             .arg("--json")
@@ -170,14 +173,14 @@ fn a_stop_during_the_fit_or_the_renders_is_honoured() {
             .unwrap();
         let mut lines = BufReader::new(child.stdout.take().unwrap()).lines();
         wait_for_event(&mut lines, "the stage", |v| is_stage(v, stage, detail));
-        sigint(&child);
+        signal(&child, sig);
         let t = Instant::now();
         let code = child.wait().unwrap().code();
         let after = t.elapsed();
         assert_eq!(code, Some(130), "{out}");
         // Well under the stage's own length (seconds): the stop was honoured
         // at once, not after the stage finished.
-        eprintln!("{out}: exited {after:?} after SIGINT");
+        eprintln!("{out}: exited {after:?} after signal {sig}");
         let dir = lab.path(out);
         assert_eq!(status(&dir), "captured", "{out}: every frame is stored, the outputs are not");
         assert!(!dir.join("report.json").exists(), "{out}");
@@ -195,23 +198,7 @@ fn a_stop_during_the_fit_or_the_renders_is_honoured() {
 fn the_daemon_cancels_any_stage_and_its_death_is_explained() {
     let lab = Lab::new();
     let socket = lab.path("daemon.sock");
-    let start_daemon = || {
-        let d = lab
-            .cmd(REFL)
-            .arg("daemon")
-            .env("REFLECTOMETER_SOCKET", &socket)
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .spawn()
-            .unwrap();
-        let t = Instant::now();
-        while std::os::unix::net::UnixStream::connect(&socket).is_err() {
-            assert!(t.elapsed() < Duration::from_secs(30), "the daemon did not start");
-            std::thread::sleep(Duration::from_millis(10));
-        }
-        d
-    };
-    let mut daemon = start_daemon();
+    let mut daemon = lab.start_daemon(&socket, Stdio::null());
     let mut client = lab
         .capture_cmd_sized("satin", "cancelled", 12, 40, 96)
         .arg("--json")
@@ -227,6 +214,9 @@ fn the_daemon_cancels_any_stage_and_its_death_is_explained() {
     assert!(String::from_utf8_lossy(&o.stdout).contains("\"cancelled\":true"), "{o:?}");
     assert_eq!(client.wait().unwrap().code(), Some(130));
     assert_eq!(status(&lab.path("cancelled")), "captured");
+    // Every frame is there: `refl fit` finishes it.
+    assert_ok(&lab.refl(&["fit", s(&lab.path("cancelled"))]), "refl fit after the cancel");
+    assert_eq!(status(&lab.path("cancelled")), "complete");
 
     // The daemon dies mid-capture (kill -9): the client explains, the
     // capture is marked interrupted and resumes without the daemon.
@@ -331,7 +321,8 @@ fn one_writer_per_capture_directory() {
     let o = lab.capture_cmd("satin", "shared", 64).args(["--stop-after", "50"]).output().unwrap();
     assert_eq!(o.status.code(), Some(130), "{}", stderr(&o));
     let dir = lab.path("shared");
-    let mut first = lab.cmd(CAPTURE).arg("--resume").arg(&dir).stdout(Stdio::null()).stderr(Stdio::piped()).spawn().unwrap();
+    let mut first =
+        lab.cmd(CAPTURE).arg("--resume").arg(&dir).stdout(Stdio::null()).stderr(Stdio::piped()).spawn().unwrap();
     let manifest = dir.join("manifest.jsonl");
     let len = std::fs::metadata(&manifest).unwrap().len();
     wait_for_bytes(&mut first, &manifest, len + 2000);

@@ -250,15 +250,15 @@ async fn a_controller_that_stops_answering_exhausts_a_bounded_budget() {
     let err = sequence::run(&mut rig, &shots, &mut ex).await.expect_err("a hung controller cannot finish the plan");
     assert!(matches!(err, RigError::GaveUp { n, .. } if n == budget), "{err}");
     assert!(err.to_string().contains("power-cycle the controller"), "{err}");
-    let reconnects =
-        rig.recoveries().iter().filter(|r| matches!(r, rig::mcu::Recovery::Reconnected { .. })).count();
+    let reconnects = rig.recoveries().iter().filter(|r| matches!(r, rig::mcu::Recovery::Reconnected { .. })).count();
     assert!((1..=budget as usize).contains(&reconnects), "{reconnects} reconnects for a budget of {budget}");
     // Every later operation fails the same bounded way (a resume of a
     // capture on the same wedged controller).
     let before = rig.recoveries().len();
     let again = rig.home().await.expect_err("still wedged");
     assert!(matches!(again, RigError::GaveUp { .. }), "{again}");
-    let more = rig.recoveries()[before..].iter().filter(|r| matches!(r, rig::mcu::Recovery::Reconnected { .. })).count();
+    let more =
+        rig.recoveries()[before..].iter().filter(|r| matches!(r, rig::mcu::Recovery::Reconnected { .. })).count();
     assert!(more <= budget as usize, "{more} reconnects in the second operation");
     sim.stop().await.unwrap();
 }

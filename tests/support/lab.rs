@@ -50,6 +50,25 @@ impl Lab {
         self.capture_cmd(sample, out, 12).args(extra).output().unwrap()
     }
 
+    /// Start `refl daemon` on `socket` and wait until it accepts connections.
+    pub fn start_daemon(&self, socket: &Path, stderr: Stdio) -> std::process::Child {
+        let mut d = self
+            .cmd(REFL)
+            .arg("daemon")
+            .env("REFLECTOMETER_SOCKET", socket)
+            .stdout(Stdio::null())
+            .stderr(stderr)
+            .spawn()
+            .unwrap();
+        let t = Instant::now();
+        while std::os::unix::net::UnixStream::connect(socket).is_err() {
+            assert!(t.elapsed() < Duration::from_secs(30), "the daemon did not start");
+            assert!(d.try_wait().unwrap().is_none(), "the daemon exited");
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        d
+    }
+
     pub fn refl(&self, args: &[&str]) -> Output {
         self.cmd(REFL).args(args).output().unwrap()
     }
@@ -86,4 +105,3 @@ pub fn wait_for_bytes(child: &mut std::process::Child, path: &Path, bytes: u64) 
         std::thread::sleep(Duration::from_millis(10));
     }
 }
-

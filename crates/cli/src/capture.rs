@@ -30,6 +30,7 @@ use sim::FaultSpec;
 use store::{CaptureDir, CaptureInfo, CaptureStatus, FrameKind, SensorInfo, SimInfo};
 use tokio::sync::watch;
 
+use crate::Interrupted;
 use crate::calib::{self, CalibrationStore};
 use crate::fitjob::{FitJob, FrameMsg};
 use crate::output;
@@ -38,7 +39,6 @@ use crate::progress::{Event, Reporter};
 use crate::report::{self, Report};
 use crate::rigfile::{RigFile, RigKind};
 use crate::session::{self, ground_truth, sim_material};
-use crate::Interrupted;
 
 /// What to capture (also the daemon's job request).
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]

@@ -34,10 +34,10 @@ use serde::Serialize;
 use setup::SampleArea;
 use store::CaptureDir;
 
-use crate::session::ground_truth;
 use crate::presets::Quality;
 use crate::progress::Reporter;
 use crate::renders::Lighting;
+use crate::session::ground_truth;
 
 /// One novel viewing and lighting condition.
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -76,7 +76,6 @@ pub fn conditions() -> Vec<Condition> {
         c("tilted +x, light overhead", 40.0, 0.0, 80.0, 0.0),
     ]
 }
-
 
 pub fn scene_for(c: &Condition, px: u32) -> Scene {
     let light = Lighting::Point { elevation_deg: c.light_elevation_deg, azimuth_deg: c.light_azimuth_deg };

@@ -9,10 +9,10 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::thread::JoinHandle;
 
 use anyhow::{Context, Result, anyhow};
-use tokio::sync::mpsc;
 use fit::{FitContext, FitInputs, FitResult, FitSettings, Pipeline, Stages};
 use frame::Frame;
 use setup::PlannedShot;
+use tokio::sync::mpsc;
 
 /// A frame on its way to the fitter.
 #[derive(Debug)]

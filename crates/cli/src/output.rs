@@ -21,7 +21,10 @@ use crate::report::Report;
 
 /// Flag counts over the grid, by name.
 pub fn flag_counts(flags: &[u32]) -> std::collections::BTreeMap<String, usize> {
-    fit::point_flag::NAMES.iter().map(|&(bit, name)| (name.to_string(), flags.iter().filter(|&&f| f & bit != 0).count())).collect()
+    fit::point_flag::NAMES
+        .iter()
+        .map(|&(bit, name)| (name.to_string(), flags.iter().filter(|&&f| f & bit != 0).count()))
+        .collect()
 }
 
 /// The fitting stages a quality preset asks for, minus those switched off.
@@ -119,7 +122,8 @@ pub fn stop_requested(stop: &watch::Receiver<bool>) -> impl Fn() -> bool + '_ {
 /// Wait for the fitter, then write the material and its preview renders.
 /// A stop request ends the wait at once (the fitter thread gives up at its
 /// next stage) and is returned as [`Interrupted`]; nothing half-written is
-/// left (the material is written atomically).
+/// left (the material is written atomically). A full disk gets the advice
+/// of [`disk_full_advice`].
 pub async fn finish_fit(
     job: FitJob,
     info: &CaptureInfo,
@@ -129,105 +133,96 @@ pub async fn finish_fit(
     report: &mut Report,
     stop: &watch::Receiver<bool>,
 ) -> Result<PathBuf> {
-    let r = fit_and_write(job, info, q, root, rep, report, stop).await;
-    r.map_err(|e| disk_full_advice(e, root))
-}
-
-async fn fit_and_write(
-    job: FitJob,
-    info: &CaptureInfo,
-    q: &Quality,
-    root: &Path,
-    rep: &mut Reporter,
-    report: &mut Report,
-    stop: &watch::Receiver<bool>,
-) -> Result<PathBuf> {
-    rep.stage("fit", "per-point NDFs (diffuse, specular, masking, Fresnel)");
-    let t = Instant::now();
-    let mut watch_stop = stop.clone();
-    let out = tokio::select! {
-        r = job.finish_async() => r?,
-        _ = watch_stop.wait_for(|s| *s) => return Err(Interrupted.into()),
-    };
-    rep.stage("fit", format!("{} points in {:.1} s after the last frame", out.maps.len(), out.timings.points_s));
-    let mut m = material_from(&out, info, q);
-    if let (Some(p), Some(prov)) = (&report.partial, m.provenance.as_object_mut()) {
-        prov.insert("partial_capture".into(), serde_json::to_value(p)?);
-    }
-    let m = std::sync::Arc::new(m);
-    let dir = root.join("material");
-    if *stop.borrow() {
-        return Err(Interrupted.into());
-    }
-    tokio::task::block_in_place(|| material::write(&dir, &m, material::WriteMode::Replace))
-        .with_context(|| format!("writing {}", dir.display()))?;
-    report.time("fit_ingest_s", out.timings.ingest_s);
-    report.time("fit_points_s", out.timings.points_s);
-    report.time("fit_synthesis_s", out.timings.synthesis_s);
-    report.time("fit_analytic_s", out.timings.analytic_s);
-    report.time("fit_selection_s", out.timings.selection_s);
-    if let Some(sel) = &out.selection {
-        let s = &sel.summary;
+    let written: Result<PathBuf> = async {
+        rep.stage("fit", "per-point NDFs (diffuse, specular, masking, Fresnel)");
+        let t = Instant::now();
+        let mut watch_stop = stop.clone();
+        let out = tokio::select! {
+            r = job.finish_async() => r?,
+            _ = watch_stop.wait_for(|s| *s) => return Err(Interrupted.into()),
+        };
+        rep.stage("fit", format!("{} points in {:.1} s after the last frame", out.maps.len(), out.timings.points_s));
+        let mut m = material_from(&out, info, q);
+        if let (Some(p), Some(prov)) = (&report.partial, m.provenance.as_object_mut()) {
+            prov.insert("partial_capture".into(), serde_json::to_value(p)?);
+        }
+        let m = std::sync::Arc::new(m);
+        let dir = root.join("material");
+        if *stop.borrow() {
+            return Err(Interrupted.into());
+        }
+        tokio::task::block_in_place(|| material::write(&dir, &m, material::WriteMode::Replace))
+            .with_context(|| format!("writing {}", dir.display()))?;
+        report.time("fit_ingest_s", out.timings.ingest_s);
+        report.time("fit_points_s", out.timings.points_s);
+        report.time("fit_synthesis_s", out.timings.synthesis_s);
+        report.time("fit_analytic_s", out.timings.analytic_s);
+        report.time("fit_selection_s", out.timings.selection_s);
+        if let Some(sel) = &out.selection {
+            let s = &sel.summary;
+            rep.stage(
+                "fit",
+                format!(
+                    "model choice: {} diffuse, {} {}, {} {}, {} tabulated; storage {:.1} MB instead of {:.1} MB",
+                    s.points[0],
+                    s.points[1],
+                    s.isotropic_model,
+                    s.points[2],
+                    s.anisotropic_model,
+                    s.points[3],
+                    s.bytes_chosen as f64 / 1e6,
+                    s.bytes_all_tabulated as f64 / 1e6
+                ),
+            );
+        }
+        if let Some(st) = &out.synth {
+            rep.stage(
+                "fit",
+                format!(
+                    "synthesis completed {} of {} points (+{:.1}% of the hemisphere on average) in {:.1} s",
+                    st.completed,
+                    st.points,
+                    100.0 * st.mean_added_coverage,
+                    out.timings.synthesis_s
+                ),
+            );
+        }
+        report.time("fit_total_after_capture_s", t.elapsed().as_secs_f64());
+        report.fit = Some(crate::report::FitReport {
+            points: out.maps.len(),
+            flags: flag_counts(&out.maps.flags),
+            samples: out.census,
+            sample_store_mb: out.sample_bytes as f64 / 1e6,
+            ndf_tables_mb: out.maps.tables.bytes() as f64 / 1e6,
+            material_disk_mb: material::io::disk_bytes(&dir) as f64 / 1e6,
+            synthesis: out.synth.clone(),
+            analytic: out
+                .models
+                .iter()
+                .map(|f| crate::report::AnalyticReport {
+                    model: f.model.name().to_string(),
+                    seconds: f.seconds,
+                    mean_residual: f.residual.iter().flatten().sum::<f32>() / f.residual.len().max(1) as f32,
+                    points_without_fit: f.residual.iter().filter(|r| r.is_none()).count(),
+                })
+                .collect(),
+            model_choice: out.selection.as_ref().map(|s| s.summary.clone()),
+        });
+        rep.stage("fit", format!("material written to {}", dir.display()));
+        let t = Instant::now();
+        let files = tokio::task::block_in_place(|| write_renders(root, m, info, rep, &stop_requested(stop)))?;
+        if *stop.borrow() {
+            return Err(Interrupted.into());
+        }
+        report.time("renders_s", t.elapsed().as_secs_f64());
         rep.stage(
-            "fit",
-            format!(
-                "model choice: {} diffuse, {} {}, {} {}, {} tabulated; storage {:.1} MB instead of {:.1} MB",
-                s.points[0],
-                s.points[1],
-                s.isotropic_model,
-                s.points[2],
-                s.anisotropic_model,
-                s.points[3],
-                s.bytes_chosen as f64 / 1e6,
-                s.bytes_all_tabulated as f64 / 1e6
-            ),
+            "render",
+            format!("{} files in {} ({:.1} s)", files.len(), root.join("renders").display(), t.elapsed().as_secs_f64()),
         );
+        Ok(dir)
     }
-    if let Some(st) = &out.synth {
-        rep.stage(
-            "fit",
-            format!(
-                "synthesis completed {} of {} points (+{:.1}% of the hemisphere on average) in {:.1} s",
-                st.completed,
-                st.points,
-                100.0 * st.mean_added_coverage,
-                out.timings.synthesis_s
-            ),
-        );
-    }
-    report.time("fit_total_after_capture_s", t.elapsed().as_secs_f64());
-    report.fit = Some(crate::report::FitReport {
-        points: out.maps.len(),
-        flags: flag_counts(&out.maps.flags),
-        samples: out.census,
-        sample_store_mb: out.sample_bytes as f64 / 1e6,
-        ndf_tables_mb: out.maps.tables.bytes() as f64 / 1e6,
-        material_disk_mb: material::io::disk_bytes(&dir) as f64 / 1e6,
-        synthesis: out.synth.clone(),
-        analytic: out
-            .models
-            .iter()
-            .map(|f| crate::report::AnalyticReport {
-                model: f.model.name().to_string(),
-                seconds: f.seconds,
-                mean_residual: f.residual.iter().flatten().sum::<f32>() / f.residual.len().max(1) as f32,
-                points_without_fit: f.residual.iter().filter(|r| r.is_none()).count(),
-            })
-            .collect(),
-        model_choice: out.selection.as_ref().map(|s| s.summary.clone()),
-    });
-    rep.stage("fit", format!("material written to {}", dir.display()));
-    let t = Instant::now();
-    let files = tokio::task::block_in_place(|| write_renders(root, m, info, rep, &stop_requested(stop)))?;
-    if *stop.borrow() {
-        return Err(Interrupted.into());
-    }
-    report.time("renders_s", t.elapsed().as_secs_f64());
-    rep.stage(
-        "render",
-        format!("{} files in {} ({:.1} s)", files.len(), root.join("renders").display(), t.elapsed().as_secs_f64()),
-    );
-    Ok(dir)
+    .await;
+    written.map_err(|e| disk_full_advice(e, root))
 }
 
 /// Side of the preview renders, in pixels.
@@ -315,6 +310,10 @@ pub async fn refit(
     report.peak_memory_mb = crate::report::peak_memory_mb();
     report.material = Some(m.display().to_string());
     write_report(dir, &report).map_err(|e| disk_full_advice(e, dir))?;
+    if missing == 0 {
+        // Every frame is stored and every output written.
+        store::CaptureDir::set_status_locked(dir, &lock, store::CaptureStatus::Complete)?;
+    }
     drop(lock);
     Ok(m)
 }

@@ -241,7 +241,8 @@ fn remove_stale_links(dir: &std::path::Path) {
             continue;
         };
         // SAFETY: kill with signal 0 only checks that the process exists.
-        let gone = unsafe { libc::kill(pid, 0) } != 0 && std::io::Error::last_os_error().raw_os_error() == Some(libc::ESRCH);
+        let gone =
+            unsafe { libc::kill(pid, 0) } != 0 && std::io::Error::last_os_error().raw_os_error() == Some(libc::ESRCH);
         if gone && e.file_type().is_ok_and(|t| t.is_symlink()) {
             tracing::debug!(link = %e.path().display(), "removing a stale emulator link");
             let _ = std::fs::remove_file(e.path());

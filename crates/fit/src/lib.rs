@@ -1,7 +1,8 @@
 //! From frames to a measured, spatially varying microfacet material. No IO:
 //! callers stream frames in and get maps and tables out.
 //!
-//! Pipeline (seed talk; DESIGN section 6):
+//! Stages (Wang et al., "Modeling Anisotropic Surface Reflectance with
+//! Example-Based Microfacet Synthesis", SIGGRAPH 2008, and its talk):
 //! 1. [`ingest`]: frames (streamed during capture, or replayed from a stored
 //!    capture) become per-(light, point) reflectance samples
 //!    `rho = I / ((n.i) L |P - x|^2)` with calibration, dark subtraction,

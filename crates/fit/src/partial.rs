@@ -1,5 +1,5 @@
-//! From one point's samples to its partial microfacet NDF (DESIGN sec. 6,
-//! steps 1-7, and the seed talk).
+//! From one point's samples to its partial microfacet NDF (the per-point
+//! steps of Wang et al. 2008 and its talk, 1-7 below).
 //!
 //! 1. **Diffuse**: the robust lower mode of each channel ([`crate::diffuse`]).
 //! 2. **Specular**: `r_q = rho_q - rho_d`; its colour is the ratio of the

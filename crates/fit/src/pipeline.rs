@@ -87,9 +87,7 @@ pub struct FitResult {
 pub enum FitError {
     #[error("the fit was stopped")]
     Stopped,
-    #[error(
-        "no usable samples: {0}; check the calibration (LED intensities, black level) and the exposure"
-    )]
+    #[error("no usable samples: {0}; check the calibration (LED intensities, black level) and the exposure")]
     NoSamples(String),
 }
 

@@ -102,9 +102,7 @@ pub fn select(maps: &PointMaps, ev: &Evidence, fits: &[ModelFit]) -> Option<Sele
         let r_iso = mean(m.iter().map(|&p| ratio(iso.residual[p], p)));
         let r_aniso = mean(m.iter().map(|&p| ratio(aniso.residual[p], p)));
         let r_tab = mean(m.iter().map(|&p| ratio(Some(ev.tabulated[p]), p)));
-        let ok = |r: Option<f32>| {
-            r.is_some_and(|r| r <= ACCEPT_RATIO || r_tab.is_none_or(|t| r <= t * AS_GOOD_AS))
-        };
+        let ok = |r: Option<f32>| r.is_some_and(|r| r <= ACCEPT_RATIO || r_tab.is_none_or(|t| r <= t * AS_GOOD_AS));
         let class = if ok(r_iso) {
             ISOTROPIC
         } else if ok(r_aniso) {

@@ -43,9 +43,7 @@ impl PointMaterial {
     /// prediction, tests).
     pub fn fitted(kd: Rgb, ks: Rgb, eta: f32, ndf: Option<Arc<dyn Ndf>>) -> Self {
         match ndf {
-            Some(ndf) if ks.max_element() > 0.0 => {
-                Self::microfacet(kd, ks, ndf, Fresnel::DielectricRelative { eta })
-            }
+            Some(ndf) if ks.max_element() > 0.0 => Self::microfacet(kd, ks, ndf, Fresnel::DielectricRelative { eta }),
             _ => PointMaterial::Diffuse { kd },
         }
     }

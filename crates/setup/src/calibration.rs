@@ -1,7 +1,8 @@
 //! Radiometric calibration: what turns a pixel value into reflectance.
 //!
 //! For a point `x` lit by LED `q` at `P_q`, the design's radiometry is
-//! `rho = I_q(x) / ((n . i_q) L_q |P_q - x|^2)` (seed talk; DESIGN section 3).
+//! `rho = I_q(x) / ((n . i_q) L_q |P_q - x|^2)` (Wang et al. 2008, the
+//! acquisition section of its talk).
 //! A real rig needs three more factors, all measured from a white diffuse
 //! reference scan of known albedo:
 //!

@@ -274,7 +274,12 @@ impl CaptureDir {
     /// Set the status of a capture nobody has open (a refit, or a client
     /// whose daemon died): takes the directory's lock for the rewrite.
     pub fn set_status_of(root: &Path, status: CaptureStatus) -> Result<(), StoreError> {
-        let _lock = DirLock::acquire(root)?;
+        let lock = DirLock::acquire(root)?;
+        Self::set_status_locked(root, &lock, status)
+    }
+
+    /// Set the status of a capture whose lock the caller holds.
+    pub fn set_status_locked(root: &Path, _lock: &DirLock, status: CaptureStatus) -> Result<(), StoreError> {
         let mut info = Self::read_info(root)?;
         info.status = status;
         write_info(root, &info)

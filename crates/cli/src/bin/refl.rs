@@ -290,8 +290,7 @@ fn main() -> ExitCode {
                 let mut rep = cli::progress::Reporter::auto(false);
                 let q = match quality {
                     Some(n) => Some(
-                        cli::presets::preset(&n)
-                            .ok_or_else(|| cli::usage(anyhow::anyhow!("unknown quality '{n}'")))?,
+                        cli::presets::preset(&n).ok_or_else(|| cli::usage(anyhow::anyhow!("unknown quality '{n}'")))?,
                     ),
                     None => None,
                 };
@@ -316,9 +315,10 @@ fn main() -> ExitCode {
                     return Err(cli::usage(anyhow::anyhow!("--px {px}: expected 8 to 4096")));
                 }
                 let light = cli::renders::Lighting::parse(&light).map_err(cli::usage)?;
-                let camera = cli::renders::parse_pair(&camera)
-                    .map_err(|e| cli::usage(anyhow::anyhow!("--camera: {e}")))?;
-                let m = std::sync::Arc::new(material::read(&dir).with_context(|| format!("reading {}", dir.display()))?);
+                let camera =
+                    cli::renders::parse_pair(&camera).map_err(|e| cli::usage(anyhow::anyhow!("--camera: {e}")))?;
+                let m =
+                    std::sync::Arc::new(material::read(&dir).with_context(|| format!("reading {}", dir.display()))?);
                 cli::renders::model_by_name(&m, &model).map_err(cli::usage)?;
                 let scene = cli::renders::scene(camera, light, px);
                 tokio::task::block_in_place(|| cli::renders::render_to_file(m, &model, &scene, &out))?;

@@ -419,7 +419,9 @@ pub fn fit_model(model: AnalyticModel, maps: &PointMaps, ev: &Evidence) -> Model
                 let mut params = maps.kd[p].to_vec();
                 params.extend_from_slice(&[0.0, 0.0, 0.0]);
                 params.extend_from_slice(&default_shape);
-                let r = model.build(&params).map(|m| rms_residual(&samples, ev.view[p], |i, o| lum(m.eval(i, o).to_array())));
+                let r = model
+                    .build(&params)
+                    .map(|m| rms_residual(&samples, ev.view[p], |i, o| lum(m.eval(i, o).to_array())));
                 (params, r)
             }
         })
