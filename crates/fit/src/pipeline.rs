@@ -89,6 +89,8 @@ pub enum FitError {
     Stopped,
     #[error("no usable samples: {0}; check the calibration (LED intensities, black level) and the exposure")]
     NoSamples(String),
+    #[error("too few usable samples: {0}; shorten the exposure or add HDR brackets (--hdr), then capture again")]
+    Saturated(String),
 }
 
 /// Fewer usable samples than this fraction of those the geometry allows
@@ -96,15 +98,21 @@ pub enum FitError {
 /// missing frames).
 pub const FEW_USABLE: f64 = 0.1;
 
-/// Refuse a fit with nothing to fit; describe a thin one.
+/// Refuse a fit with nothing to fit, or one whose frames are nearly all
+/// saturated (far fewer samples than the plan promises); describe a thin
+/// one (frames missing, much of the sample at grazing light).
 pub fn check_census(c: &Census, total: usize) -> Result<Option<String>, FitError> {
     let allowed = (total as u64).saturating_sub(c.occluded).max(1);
     let why = format!(
-        "{} of {allowed} samples the geometry allows are usable ({} missing frames, {} saturated, {} too dark)",
+        "{} of {allowed} samples the geometry allows are usable ({} missing frames, {} saturated, {} at grazing or \
+         dim light)",
         c.usable, c.missing, c.saturated, c.dim
     );
     if c.usable == 0 {
         return Err(FitError::NoSamples(why));
+    }
+    if (c.usable as f64) < FEW_USABLE * (c.usable + c.saturated) as f64 {
+        return Err(FitError::Saturated(why));
     }
     Ok(((c.usable as f64) < FEW_USABLE * allowed as f64).then_some(why))
 }
@@ -282,7 +290,10 @@ mod tests {
     fn a_fit_without_usable_samples_is_refused_and_a_thin_one_described() {
         let none = Census { usable: 0, missing: 10, occluded: 5, saturated: 3, dim: 82 };
         let e = check_census(&none, 100).unwrap_err().to_string();
-        assert!(e.contains("no usable samples") && e.contains("82 too dark"), "{e}");
+        assert!(e.contains("no usable samples") && e.contains("82 at grazing"), "{e}");
+        // Nearly every sample with light saturated: the exposure is wrong.
+        let burnt = Census { usable: 4, missing: 0, occluded: 5, saturated: 60, dim: 31 };
+        assert!(matches!(check_census(&burnt, 100), Err(FitError::Saturated(_))));
         // 5 of the 95 samples the geometry allows: below a tenth.
         let thin = Census { usable: 5, missing: 0, occluded: 5, saturated: 0, dim: 90 };
         assert!(check_census(&thin, 100).unwrap().is_some_and(|w| w.contains("5 of 95")));

@@ -81,6 +81,8 @@ pub struct RigSettings {
     /// Recoveries allowed over the rig's whole session (a capture): a link
     /// that keeps failing is a fault to fix, not to ride out.
     pub max_recoveries_total: u32,
+    /// Wall time the whole session may spend recovering.
+    pub recovery_time_total: Duration,
     /// Expected motion, to predict when `MoveDone` is due.
     pub speed_um_s: f64,
     pub accel_um_s2: f64,
@@ -102,6 +104,7 @@ impl Default for RigSettings {
             max_recoveries_per_op: 6,
             recovery_time_per_op: Duration::from_secs(60),
             max_recoveries_total: 200,
+            recovery_time_total: Duration::from_secs(300),
             speed_um_s: 100_000.0,
             accel_um_s2: 1_000_000.0,
             settle_ms: 30.0,
@@ -201,6 +204,8 @@ pub struct Rig<C: Connector> {
     epoch: u64,
     recoveries: Vec<Recovery>,
     total_recoveries: u32,
+    /// Wall time spent in recovery steps this session.
+    recovering: Duration,
     settings: RigSettings,
     closed_stats: LinkStats,
 }
@@ -229,6 +234,7 @@ impl<C: Connector> Rig<C> {
             epoch: 0,
             recoveries: Vec::new(),
             total_recoveries: 0,
+            recovering: Duration::ZERO,
             settings,
             closed_stats: LinkStats::default(),
         };
@@ -346,6 +352,8 @@ impl<C: Connector> Rig<C> {
     /// (`max_recoveries_per_op`, `recovery_time_per_op`) and the rig's
     /// (`max_recoveries_total`), so a rig that answers too slowly or not at
     /// all ends in [`RigError::GaveUp`] instead of reconnecting forever.
+    /// The session's budget counts attempts and the wall time spent
+    /// recovering (`recovery_time_total`).
     async fn run(&mut self, op: Op) -> Result<Out, RigError> {
         let started = Instant::now();
         let mut n = 0;
@@ -356,7 +364,8 @@ impl<C: Connector> Rig<C> {
                 self.total_recoveries += 1;
                 let over_count = n > self.settings.max_recoveries_per_op;
                 let over_time = started.elapsed() > self.settings.recovery_time_per_op;
-                let over_total = self.total_recoveries > self.settings.max_recoveries_total;
+                let over_total = self.total_recoveries > self.settings.max_recoveries_total
+                    || self.recovering > self.settings.recovery_time_total;
                 if over_count || over_time || over_total {
                     return Err(RigError::GaveUp {
                         op: op.name(),
@@ -365,7 +374,10 @@ impl<C: Connector> Rig<C> {
                         cause: err,
                     });
                 }
-                match self.recover(op, err).await {
+                let step = Instant::now();
+                let recovered = self.recover(op, err).await;
+                self.recovering += step.elapsed();
+                match recovered {
                     Ok(()) => self.epoch += 1,
                     Err(Step::Again(e)) => {
                         // The recovery itself failed on the link: count it, try again.
