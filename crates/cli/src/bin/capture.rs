@@ -168,6 +168,9 @@ fn main() -> ExitCode {
         }
         Ok(0)
     });
+    // Do not wait for blocking work a stop abandoned (a fitter thread
+    // finishing its stage): everything that matters was awaited above.
+    rt.shutdown_background();
     match result {
         Ok(code) => ExitCode::from(code as u8),
         Err(e) => {

@@ -430,6 +430,9 @@ fn main() -> ExitCode {
             }
         }
     });
+    // Do not wait for blocking work a stop abandoned (a fitter thread
+    // finishing its stage): everything that matters was awaited above.
+    rt.shutdown_background();
     match r {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
