@@ -44,8 +44,8 @@ fn snapshot(dir: &Path) -> Vec<(PathBuf, Vec<u8>)> {
     out
 }
 
-/// Read `child`'s JSON progress lines until one satisfies `pred`; returns
-/// the reader for the rest. Fails if the process ends first.
+/// Read JSON progress lines until one satisfies `pred` (the rest stay in
+/// `lines`). Fails if the process ends first.
 fn wait_for_event(
     lines: &mut impl Iterator<Item = std::io::Result<String>>,
     what: &str,
@@ -53,10 +53,8 @@ fn wait_for_event(
 ) {
     for l in lines.by_ref() {
         let l = l.unwrap();
-        if let Ok(v) = serde_json::from_str::<serde_json::Value>(&l) {
-            if pred(&v) {
-                return;
-            }
+        if serde_json::from_str::<serde_json::Value>(&l).is_ok_and(|v| pred(&v)) {
+            return;
         }
     }
     panic!("the process ended before {what}");
@@ -238,7 +236,7 @@ fn the_daemon_cancels_any_stage_and_its_death_is_explained() {
     assert_ok(&o, "resume after the daemon died");
 }
 
-/// A rig file in the lab with `key = value` replaced.
+/// Write a rig file into the lab.
 fn rig_file(lab: &Lab, name: &str, body: &str) -> PathBuf {
     let p = lab.path(name);
     std::fs::write(&p, body).unwrap();
