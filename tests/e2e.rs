@@ -416,3 +416,26 @@ fn a_capture_of_this_format_version_still_reads() {
     assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
     assert!(stderr(&o).contains("version 99"), "{}", stderr(&o));
 }
+
+/// Logs written to a pipe or file carry no colour codes; `--log-format
+/// json` writes one JSON object per line.
+#[test]
+fn logs_to_a_pipe_are_plain_text_or_json() {
+    let lab = Lab::new();
+    let o = lab.capture_cmd("satin", "plain", 4).arg("--no-fit").env("RUST_LOG", "info").output().unwrap();
+    assert_ok(&o, "capture");
+    let log = stderr(&o);
+    assert!(log.lines().count() > 5, "too few log lines to judge: {log}");
+    assert!(!log.contains('\u{1b}'), "escape codes in a piped log: {log:?}");
+    let o = lab
+        .capture_cmd("satin", "json", 4)
+        .args(["--no-fit", "--log-format", "json"])
+        .env("RUST_LOG", "info")
+        .output()
+        .unwrap();
+    assert_ok(&o, "capture --log-format json");
+    for line in stderr(&o).lines().filter(|l| !l.trim().is_empty()) {
+        let v: serde_json::Value = serde_json::from_str(line).unwrap_or_else(|e| panic!("{e}: {line}"));
+        assert!(v["level"].is_string() && v["fields"]["message"].is_string(), "{line}");
+    }
+}

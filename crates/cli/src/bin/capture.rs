@@ -160,10 +160,18 @@ fn main() -> ExitCode {
             }
         }
         let summary = capture::run(req, &mut rep, stop).await?;
-        if !args.json {
-            eprintln!("capture: {}", summary.dir.display());
-            if let Some(m) = &summary.material {
-                eprintln!("material: {}", m.display());
+        match (args.json, args.log_format) {
+            (true, _) => {}
+            (false, cli::LogFormat::Json) => tracing::info!(
+                capture = %summary.dir.display(),
+                material = summary.material.as_ref().map(|m| m.display().to_string()),
+                "capture finished"
+            ),
+            (false, cli::LogFormat::Text) => {
+                eprintln!("capture: {}", summary.dir.display());
+                if let Some(m) = &summary.material {
+                    eprintln!("material: {}", m.display());
+                }
             }
         }
         Ok(0)

@@ -275,7 +275,8 @@ fn import(rgl: bool, a: &ImportArgs) -> anyhow::Result<()> {
 
 fn main() -> ExitCode {
     let args = Args::parse();
-    cli::init_logging(args.log_format);
+    let args_log_format = args.log_format;
+    cli::init_logging(args_log_format);
     let rt = match tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build() {
         Ok(rt) => rt,
         Err(e) => {
@@ -436,7 +437,10 @@ fn main() -> ExitCode {
     match r {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("error: {e:#}");
+            match args_log_format {
+                cli::LogFormat::Json => tracing::error!("{e:#}"),
+                cli::LogFormat::Text => eprintln!("error: {e:#}"),
+            }
             ExitCode::from(cli::exit::code(&e) as u8)
         }
     }
