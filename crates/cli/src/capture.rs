@@ -15,7 +15,7 @@
 //! 5. Fit, write `material/`, renders and `report.json`.
 
 use std::collections::HashSet;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, anyhow, bail};
@@ -70,38 +70,6 @@ fn quality(req: &CaptureRequest) -> Result<Quality> {
     let q = presets::preset(name)
         .ok_or_else(|| anyhow!("unknown quality '{name}': use one of {}", presets::PRESETS.join(", ")))?;
     q.apply(&req.overrides)
-}
-
-/// Refuse an `--out` that cannot take a new capture (another capture, a
-/// file, a directory holding anything) before anything is touched.
-fn check_out_dir(out: &Path) -> Result<()> {
-    if out.join(CaptureDir::INFO).exists() {
-        let other = CaptureDir::read_info(out).map_err(|e| crate::usage(e.into()))?;
-        return Err(crate::usage(anyhow!(
-            "{} already holds a capture of '{}' made {}; choose another --out, or continue it with --resume {}",
-            out.display(),
-            other.sample,
-            other.created_utc,
-            out.display()
-        )));
-    }
-    match std::fs::symlink_metadata(out) {
-        Err(_) => Ok(()),
-        Ok(m) if !m.is_dir() => {
-            Err(crate::usage(anyhow!("--out {} is a file, not a directory; choose a new directory", out.display())))
-        }
-        Ok(_) => {
-            let entries = std::fs::read_dir(out).map(|d| d.count()).unwrap_or(0);
-            if entries > 0 {
-                return Err(crate::usage(anyhow!(
-                    "--out {} holds {entries} entries and is not a capture; choose a new or empty directory \
-                     (nothing was changed)",
-                    out.display()
-                )));
-            }
-            Ok(())
-        }
-    }
 }
 
 /// The plan a quality preset asks for on a rig.
@@ -363,7 +331,8 @@ pub async fn run(req: CaptureRequest, rep: &mut Reporter, cancel: watch::Receive
         let sample = req.sample.clone().ok_or_else(|| crate::usage(anyhow!("name the sample with --sample NAME")))?;
         let out =
             req.out.clone().ok_or_else(|| crate::usage(anyhow!("choose the capture directory with --out DIR")))?;
-        check_out_dir(&out)?;
+        // Before devices and calibrations: a refused --out touches nothing.
+        CaptureDir::check_new(&out)?;
         if rf.kind == RigKind::Sim {
             sim_material(&sample, req.sim_material.as_deref()).map_err(crate::usage)?;
         }

@@ -87,15 +87,12 @@ pub fn material_from(out: &FitResult, info: &CaptureInfo, q: &Quality) -> Materi
     }
 }
 
-/// Was `e` caused by a full disk?
+/// Was `e` caused by a full disk? (An ENOSPC anywhere in its chain of
+/// sources, or the store's own disk-full error, which replaces it.)
 pub fn is_disk_full(e: &anyhow::Error) -> bool {
     e.chain().any(|c| {
         c.downcast_ref::<std::io::Error>().is_some_and(|io| io.raw_os_error() == Some(libc::ENOSPC))
             || matches!(c.downcast_ref::<store::StoreError>(), Some(store::StoreError::DiskFull { .. }))
-            || matches!(
-                c.downcast_ref::<material::MaterialError>(),
-                Some(material::MaterialError::Io { source, .. }) if source.raw_os_error() == Some(libc::ENOSPC)
-            )
     })
 }
 

@@ -17,7 +17,10 @@ pub enum StoreError {
         "{dir} already holds a capture of '{sample}' made {created}; choose another --out, or continue it with --resume {dir}"
     )]
     AnotherCapture { dir: String, sample: String, created: String },
-    #[error("{0} exists and is not empty, and is not a capture directory; choose an empty or new directory")]
+    #[error(
+        "{0} exists and is a file or a directory holding something, not a capture; choose an empty or new directory \
+         (nothing was changed)"
+    )]
     NotEmpty(String),
     #[error("{0} is not a capture directory (no capture.json)")]
     NotACapture(String),
@@ -118,9 +121,10 @@ impl CaptureDir {
     pub const MANIFEST: &'static str = "manifest.jsonl";
     pub const FRAMES: &'static str = "frames";
 
-    /// Start a new capture in `root` (created if missing). Refuses a
-    /// directory that holds another capture or anything else.
-    pub fn create(root: &Path, info: CaptureInfo) -> Result<Self, StoreError> {
+    /// Can a new capture start in `root`? Refuses another capture, a file,
+    /// and a directory holding anything. Touches nothing, so a caller can
+    /// check before it starts devices and calibrations.
+    pub fn check_new(root: &Path) -> Result<(), StoreError> {
         if root.join(Self::INFO).exists() {
             let other = Self::read_info(root)?;
             return Err(StoreError::AnotherCapture {
@@ -129,12 +133,20 @@ impl CaptureDir {
                 created: other.created_utc,
             });
         }
-        if root.exists() {
-            let non_empty = fs::read_dir(root).map_err(|e| io_err("reading", root, e, root))?.next().is_some();
-            if non_empty {
-                return Err(StoreError::NotEmpty(root.display().to_string()));
+        match fs::symlink_metadata(root) {
+            Err(_) => Ok(()),
+            Ok(m) if !m.is_dir() => Err(StoreError::NotEmpty(root.display().to_string())),
+            Ok(_) => {
+                let non_empty = fs::read_dir(root).map_err(|e| io_err("reading", root, e, root))?.next().is_some();
+                if non_empty { Err(StoreError::NotEmpty(root.display().to_string())) } else { Ok(()) }
             }
         }
+    }
+
+    /// Start a new capture in `root` (created if missing). Refuses a
+    /// directory that holds another capture or anything else.
+    pub fn create(root: &Path, info: CaptureInfo) -> Result<Self, StoreError> {
+        Self::check_new(root)?;
         fs::create_dir_all(root.join(Self::FRAMES)).map_err(|e| io_err("creating", root, e, root))?;
         let lock = DirLock::acquire(root)?;
         if root.join(Self::INFO).exists() {

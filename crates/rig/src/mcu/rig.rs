@@ -377,11 +377,12 @@ impl<C: Connector> Rig<C> {
                 let step = Instant::now();
                 let recovered = self.recover(op, err).await;
                 self.recovering += step.elapsed();
+                // Whatever the step achieved, the rig may have been disturbed.
+                self.epoch += 1;
                 match recovered {
-                    Ok(()) => self.epoch += 1,
+                    Ok(()) => {}
                     Err(Step::Again(e)) => {
                         // The recovery itself failed on the link: count it, try again.
-                        self.epoch += 1;
                         pending = Some(e);
                         continue;
                     }

@@ -1,0 +1,79 @@
+#!/usr/bin/env bash
+# Score the instrument on every built-in sample and every measured RGL file
+# in ../shared/data/rgl (imported with `refl import-rgl`, scanned with
+# `capture --sim-material`): one simulated capture each, then `refl eval
+# --json`. Prints one table row per sample and keeps each eval JSON.
+#
+#   bash scripts/eval-all.sh [--quality Q] [--bin DIR] [OUT]
+#
+# --bin names the directory holding `capture` and `refl` (default: this
+# tree's release build, built first), so two builds can be compared on the
+# same inputs. Without ../shared/data/rgl the RGL rows are skipped, and the
+# script says so.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+quality=fast
+bin=""
+while [ $# -gt 0 ]; do
+  case "$1" in
+    --quality) quality="$2"; shift 2 ;;
+    --bin) bin="$2"; shift 2 ;;
+    *) break ;;
+  esac
+done
+out="${1:-runs/eval-all-$quality}"
+if [ -z "$bin" ]; then
+  bash scripts/setup.sh
+  cargo build --release --quiet --bins
+  bin="$PWD/target/release"
+fi
+mkdir -p "$out"
+out="$(cd "$out" && pwd)"
+export REFLECTOMETER_DATA="$out/data" RUST_LOG=warn
+rgl_dir="../shared/data/rgl"
+
+row() { # name dir
+  python3 - "$1" "$2/eval.json" <<'EOF'
+import json, sys
+name, path = sys.argv[1], sys.argv[2]
+ev = json.load(open(path))
+m = ev["models"]
+def r(k):
+    v = m.get(k, {}).get("render_rel_rmse")
+    return "-" if v is None else f"{v:.4f}"
+syn = m.get("synthesized") or m.get("partial") or {}
+def f(v):
+    return "-" if v is None else f"{v:.4f}"
+analytic = {k: v["render_rel_rmse"] for k, v in m.items()
+            if k not in ("synthesized", "partial", "auto") and v.get("render_rel_rmse") is not None}
+best = min(analytic, key=analytic.get) if analytic else None
+h = ev.get("holdout", {}).get("partial", {}).get("frame_rel_rmse")
+print(f"{name:24} {f(syn.get('ndf_rel_l2_observed')):>8} {f(syn.get('ndf_rel_l2_full')):>8} "
+      f"{r('synthesized'):>8} {r('auto'):>8} {(best or '-'):>18} {f(analytic.get(best)) if best else '-':>8} {f(h):>8}")
+EOF
+}
+
+scan() { # name [capture args...]
+  local name="$1"; shift
+  local dir="$out/$name"
+  rm -rf "$dir"
+  "$bin/capture" --quality "$quality" --no-daemon --out "$dir" "$@" >/dev/null 2>"$out/$name.log"
+  "$bin/refl" eval "$dir" --json --px 64 >"$dir/eval.json" 2>>"$out/$name.log"
+  row "$name" "$dir"
+}
+
+printf '%-24s %8s %8s %8s %8s %18s %8s %8s\n' sample ndf_obs ndf_full synth auto best_analytic best hold_out
+for s in $("$bin/capture" --list-samples | awk '{print $1}'); do
+  scan "$s" --sample "$s"
+done
+if [ -d "$rgl_dir" ]; then
+  for f in "$rgl_dir"/*.bsdf; do
+    name="$(basename "$f" .bsdf)"
+    rm -rf "$out/mat-$name"
+    "$bin/refl" import-rgl "$f" --out "$out/mat-$name" >/dev/null 2>"$out/$name.import.log"
+    scan "$name" --sample "$name" --sim-material "$out/mat-$name"
+  done
+else
+  echo "eval-all: $rgl_dir is absent; the measured RGL materials were not scored" >&2
+fi
+echo "eval-all: per-sample eval JSON under $out" >&2
