@@ -65,6 +65,29 @@ impl Default for McuConfig {
     }
 }
 
+impl McuConfig {
+    /// The emulated controller of a rig with geometry `g`, its clock running
+    /// `time_scale` times real time (0.001: a thousand times faster).
+    pub fn for_geometry(g: &setup::RigGeometry, time_scale: f64) -> Self {
+        let um = |mm: f32| (mm * 1000.0).round() as i32;
+        Self {
+            n_leds: g.bar.n_leds,
+            travel_min_um: um(g.gantry.travel_min_mm),
+            travel_max_um: um(g.gantry.travel_max_mm),
+            // The home switch sits 5 mm beyond the soft limit.
+            switch_min_um: um(g.gantry.travel_min_mm) - 5_000,
+            profile: MotionProfile {
+                speed_um_s: g.gantry.speed_mm_s as f64 * 1000.0,
+                accel_um_s2: g.gantry.accel_mm_s2 as f64 * 1000.0,
+            },
+            homing_speed_um_s: g.gantry.homing_speed_mm_s as f64 * 1000.0,
+            settle_ms: g.gantry.settle_ms as f64,
+            time_scale,
+            ..Self::default()
+        }
+    }
+}
+
 #[derive(Clone, Copy, Debug)]
 struct Motion {
     seq: u8,

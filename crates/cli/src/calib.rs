@@ -1,7 +1,6 @@
 //! Calibrations: where they are kept, and the dark and white scans that
 //! produce them (`capture --calibrate dark|white`).
 
-use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
@@ -11,60 +10,7 @@ use rig::clock;
 use rig::mcu::{Connector, Rig};
 use setup::{Calibration, CapturePlan, PointGrid, RigGeometry};
 
-use crate::paths;
 use crate::progress::{Event, Reporter};
-
-/// Calibrations of one rig, newest last by id (a UTC timestamp).
-#[derive(Clone, Debug)]
-pub struct CalibrationStore {
-    dir: PathBuf,
-}
-
-impl CalibrationStore {
-    pub fn new(base: Option<&Path>, rig_name: &str) -> Result<Self> {
-        let base = match base {
-            Some(b) => b.to_path_buf(),
-            None => paths::data_dir()?.join("calibration"),
-        };
-        Ok(Self { dir: base.join(rig_name) })
-    }
-
-    pub fn dir(&self) -> &Path {
-        &self.dir
-    }
-
-    /// The newest calibration, with its file.
-    pub fn newest(&self) -> Result<Option<(PathBuf, Calibration)>> {
-        let rd = match std::fs::read_dir(&self.dir) {
-            Ok(r) => r,
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
-            Err(e) => return Err(e).with_context(|| format!("cannot read {}", self.dir.display())),
-        };
-        let mut files: Vec<PathBuf> =
-            rd.flatten().map(|e| e.path()).filter(|p| p.extension().is_some_and(|x| x == "json")).collect();
-        files.sort();
-        match files.pop() {
-            Some(p) => {
-                let text = std::fs::read_to_string(&p).with_context(|| format!("cannot read {}", p.display()))?;
-                let c: Calibration = serde_json::from_str(&text).with_context(|| {
-                    format!("{} is not a calibration; delete it or run capture --calibrate again", p.display())
-                })?;
-                Ok(Some((p, c)))
-            }
-            None => Ok(None),
-        }
-    }
-
-    pub fn save(&self, c: &Calibration) -> Result<PathBuf> {
-        std::fs::create_dir_all(&self.dir).with_context(|| format!("cannot create {}", self.dir.display()))?;
-        let p = self.dir.join(format!("{}.json", c.id));
-        let tmp = self.dir.join(format!(".{}.tmp", c.id));
-        std::fs::write(&tmp, serde_json::to_vec_pretty(c)?)
-            .with_context(|| format!("cannot write {}", tmp.display()))?;
-        std::fs::rename(&tmp, &p)?;
-        Ok(p)
-    }
-}
 
 /// Number of dark frames a dark calibration averages.
 pub const DARK_FRAMES: u32 = 16;
@@ -92,7 +38,7 @@ pub async fn dark<K: Connector, C: Camera>(
     if let Some(why) = stats.light_leak() {
         rep.warn(why);
     }
-    Ok(Calibration { id: paths::utc_stamp(), black_level: stats.black_level, read_noise_dn: stats.read_noise, ..base })
+    Ok(Calibration { id: crate::paths::utc_stamp(), black_level: stats.black_level, read_noise_dn: stats.read_noise, ..base })
 }
 
 /// White scan: the white reference under every LED at every step of a
@@ -157,7 +103,7 @@ pub async fn white<K: Connector, C: Camera>(
         rep.emit(Event::Frames { done, total, rate_hz: rate, eta_s: (total - done) as f64 / rate.max(1e-9) });
     }
     rig.all_off().await?;
-    let solved = tokio::task::block_in_place(|| acc.solve(&nominal, paths::utc_stamp()))
+    let solved = tokio::task::block_in_place(|| acc.solve(&nominal, crate::paths::utc_stamp()))
         .context("the white scan had too few usable samples (is the reference in place and lit?)")?;
     rep.stage(
         "calibrate",

@@ -31,14 +31,16 @@ use store::{CaptureDir, CaptureInfo, CaptureStatus, FrameKind, SensorInfo, SimIn
 use tokio::sync::watch;
 
 use crate::Interrupted;
-use crate::calib::{self, CalibrationStore};
+use crate::calib;
+use store::CalibrationStore;
 use crate::fitjob::{FitJob, FrameMsg};
 use crate::output;
-use crate::presets::{self, Overrides, Quality};
+use config::presets::{self, Overrides, Quality};
 use crate::progress::{Event, Reporter};
-use crate::report::{self, Report};
-use crate::rigfile::{RigFile, RigKind};
-use crate::session::{self, ground_truth, sim_material};
+use assess::report::{self, Report};
+use config::{RigFile, RigKind};
+use crate::session;
+use assess::truth::{ground_truth, sim_material};
 
 /// What to capture (also the daemon's job request).
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -69,7 +71,7 @@ fn quality(req: &CaptureRequest) -> Result<Quality> {
     let name = req.quality.as_deref().unwrap_or("balanced");
     let q = presets::preset(name)
         .ok_or_else(|| anyhow!("unknown quality '{name}': use one of {}", presets::PRESETS.join(", ")))?;
-    q.apply(&req.overrides)
+    Ok(q.apply(&req.overrides)?)
 }
 
 /// The plan a quality preset asks for on a rig.
@@ -307,7 +309,7 @@ pub struct Summary {
 /// frames (e-stop, everything stored kept), the fit and the renders.
 pub async fn run(req: CaptureRequest, rep: &mut Reporter, cancel: watch::Receiver<bool>) -> Result<Summary> {
     let started = Instant::now();
-    let (rf, rig_source) = RigFile::load(req.rig_file.as_deref()).map_err(crate::usage)?;
+    let (rf, rig_source) = RigFile::load(req.rig_file.as_deref())?;
     let faults = FaultSpec::parse(&req.sim_faults).map_err(|e| crate::usage(anyhow!("--sim-faults: {e}")))?;
     let resume = req.resume.is_some();
     // Everything about the capture comes from the request, or from
@@ -362,7 +364,7 @@ pub async fn run(req: CaptureRequest, rep: &mut Reporter, cancel: watch::Receive
         (None, info, q, HashSet::new())
     };
     let geometry = info.geometry.clone();
-    let cal_store = CalibrationStore::new(req.calib_dir.as_deref(), &rf.name)?;
+    let cal_store = crate::paths::calibrations(req.calib_dir.as_deref(), &rf.name)?;
     let (calibration, cal_source) = if resume {
         info.calibration.validate().map_err(|e| {
             crate::usage(anyhow!("{}: the calibration it records is not usable: {e}", CaptureDir::INFO))

@@ -8,18 +8,11 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::thread::JoinHandle;
 
-use anyhow::{Context, Result, anyhow};
+use anyhow::{Result, anyhow};
 use fit::{FitContext, FitInputs, FitResult, FitSettings, Pipeline, Stages};
-use frame::Frame;
-use setup::PlannedShot;
 use tokio::sync::mpsc;
 
-/// A frame on its way to the fitter.
-#[derive(Debug)]
-pub enum FrameMsg {
-    Dark { exposure: u8, frame: Frame },
-    Shot { shot: PlannedShot, frame: Frame },
-}
+pub use assess::replay::{FrameMsg, fit_inputs};
 
 /// A fitter thread fed through a bounded channel (back-pressure: a capture
 /// never runs more than 32 frames ahead of the fitter). The channel is
@@ -99,31 +92,9 @@ fn run(
     let ctx = FitContext::new(inputs);
     let mut pipeline = Pipeline::new(&ctx, settings, stages);
     while let Some(msg) = rx.blocking_recv() {
-        match msg {
-            FrameMsg::Dark { exposure, frame } => pipeline.push_dark(exposure, &frame),
-            FrameMsg::Shot { shot, frame } => pipeline.push_shot(&shot, &frame),
-        }
+        msg.feed(&mut pipeline);
     }
     Ok(pipeline.finish(&|| stop.load(Ordering::Relaxed))?)
-}
-
-/// Read a stored capture's frames in manifest order (dark frames were
-/// stored before the shots of their exposure) and hand each to `each`.
-pub fn for_each_frame(
-    root: &std::path::Path,
-    entries: &[store::ManifestEntry],
-    each: &mut dyn FnMut(FrameMsg) -> Result<()>,
-) -> Result<u64> {
-    let mut n = 0;
-    for e in entries {
-        let frame = store::CaptureDir::read_frame(root, e).with_context(|| format!("reading {}", e.file))?;
-        each(match e.frame {
-            store::FrameKind::Dark { exposure, .. } => FrameMsg::Dark { exposure, frame },
-            store::FrameKind::Shot(shot) => FrameMsg::Shot { shot, frame },
-        })?;
-        n += 1;
-    }
-    Ok(n)
 }
 
 /// Replay a stored capture's frames into a fit job. A stop request
@@ -136,22 +107,10 @@ pub fn replay(
     job: &FitJob,
     stop: &dyn Fn() -> bool,
 ) -> Result<u64> {
-    for_each_frame(root, entries, &mut |msg| {
+    assess::replay::for_each_frame(root, entries, &mut |msg| {
         if stop() {
             return Err(crate::Interrupted.into());
         }
         job.send_blocking(msg)
     })
-}
-
-/// What the fitter needs to know about a stored capture.
-pub fn fit_inputs(info: &store::CaptureInfo) -> fit::FitInputs {
-    fit::FitInputs {
-        geometry: info.geometry.clone(),
-        plan: info.plan.clone(),
-        calibration: info.calibration.clone(),
-        grid: info.grid,
-        e_per_dn: info.sensor.e_per_dn,
-        bit_depth: info.sensor.bit_depth,
-    }
 }

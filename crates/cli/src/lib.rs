@@ -1,24 +1,18 @@
-//! The reflectometer's application layer, shared by the `capture` and
-//! `refl` binaries and the daemon: rig files, quality presets, calibration,
-//! the capture job (devices, store, streaming fit) and its outputs.
+//! The reflectometer's application, shared by the `capture` and `refl`
+//! binaries and the daemon: the capture job (devices, store, streaming
+//! fit) and its outputs, calibration runs, the daemon, where files go, and
+//! progress. Configuration (rig files, presets) is `config`'s; evaluation,
+//! renders and the tools that work on stored captures are `assess`'s.
 
 pub mod bench;
 pub mod calib;
 pub mod capture;
 pub mod daemon;
-pub mod eval;
 pub mod fitjob;
-pub mod gltf;
-pub mod inspect;
 pub mod output;
 pub mod paths;
-pub mod presets;
 pub mod progress;
-pub mod renders;
-pub mod report;
-pub mod rigfile;
 pub mod session;
-pub mod tradeoff;
 
 /// Exit codes of the binaries, and the one place that maps an error to its
 /// code (both binaries and the daemon use [`exit::code`]).
@@ -44,6 +38,7 @@ pub mod exit {
                 return INTERRUPTED;
             }
             if cause.is::<crate::Usage>()
+                || cause.is::<config::ConfigError>()
                 || cause.is::<material::rgl::RglError>()
                 || cause.is::<material::merl::MerlError>()
             {
@@ -64,6 +59,7 @@ pub mod exit {
                         | S::BadCaptureJson { .. }
                         | S::Version { .. }
                         | S::Locked { .. }
+                        | S::BadCalibration { .. }
                 )
             });
             if bad_material || bad_capture {

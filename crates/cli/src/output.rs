@@ -14,10 +14,9 @@ use crate::Interrupted;
 use fit::{FitResult, Stages};
 
 use crate::fitjob::FitJob;
-use crate::presets::Overrides;
-use crate::presets::Quality;
+use config::{Overrides, Quality};
 use crate::progress::Reporter;
-use crate::report::Report;
+use assess::report::{self, Report};
 
 /// Flag counts over the grid, by name.
 pub fn flag_counts(flags: &[u32]) -> std::collections::BTreeMap<String, usize> {
@@ -185,7 +184,7 @@ pub async fn finish_fit(
             );
         }
         report.time("fit_total_after_capture_s", t.elapsed().as_secs_f64());
-        report.fit = Some(crate::report::FitReport {
+        report.fit = Some(report::FitReport {
             points: out.maps.len(),
             flags: flag_counts(&out.maps.flags),
             samples: out.census,
@@ -196,7 +195,7 @@ pub async fn finish_fit(
             analytic: out
                 .models
                 .iter()
-                .map(|f| crate::report::AnalyticReport {
+                .map(|f| report::AnalyticReport {
                     model: f.model.name().to_string(),
                     seconds: f.seconds,
                     mean_residual: f.residual.iter().flatten().sum::<f32>() / f.residual.len().max(1) as f32,
@@ -234,8 +233,8 @@ fn write_renders(
     rep: &mut Reporter,
     stop: &dyn Fn() -> bool,
 ) -> Result<Vec<PathBuf>> {
-    let truth = crate::session::ground_truth(info)?;
-    crate::renders::write_previews(&root.join("renders"), m, truth, PREVIEW_PX, rep, stop)
+    let truth = assess::truth::ground_truth(info)?;
+    assess::renders::write_previews(&root.join("renders"), m, truth, PREVIEW_PX, rep, stop)
 }
 
 pub fn write_report(root: &Path, report: &Report) -> Result<()> {
@@ -301,10 +300,10 @@ pub async fn refit(
     let mut info = info;
     if missing > 0 {
         info.status = store::CaptureStatus::Interrupted;
-        report.partial = Some(crate::report::PartialReport { planned_shots: planned, stored_shots: stored.len() });
+        report.partial = Some(report::PartialReport { planned_shots: planned, stored_shots: stored.len() });
     }
     let m = finish_fit(job, &info, &q, dir, rep, &mut report, stop).await?;
-    report.peak_memory_mb = crate::report::peak_memory_mb();
+    report.peak_memory_mb = report::peak_memory_mb();
     report.material = Some(m.display().to_string());
     write_report(dir, &report).map_err(|e| disk_full_advice(e, dir))?;
     if missing == 0 {

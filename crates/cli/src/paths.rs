@@ -27,6 +27,16 @@ pub fn data_dir() -> anyhow::Result<PathBuf> {
     }
 }
 
+/// The calibrations of rig `rig_name`: under `--calib-dir` if given, else
+/// under the data directory's `calibration/`.
+pub fn calibrations(calib_dir: Option<&std::path::Path>, rig_name: &str) -> anyhow::Result<store::CalibrationStore> {
+    let base = match calib_dir {
+        Some(b) => b.to_path_buf(),
+        None => data_dir()?.join("calibration"),
+    };
+    Ok(store::CalibrationStore::new(&base, rig_name))
+}
+
 /// This user's home directory from the password database.
 fn home_from_passwd() -> Option<PathBuf> {
     use std::ffi::CStr;

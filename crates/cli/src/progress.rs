@@ -131,3 +131,9 @@ impl Reporter {
         self.emit(Event::Warning { message: message.into() });
     }
 }
+
+impl assess::Progress for Reporter {
+    fn stage(&mut self, stage: &str, detail: String) {
+        Reporter::stage(self, stage, detail);
+    }
+}

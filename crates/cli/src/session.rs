@@ -2,7 +2,6 @@
 //! pseudo-terminal, driven by the real serial driver, and the simulated
 //! camera) or the hardware named in the rig file.
 
-use std::path::Path;
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -17,7 +16,7 @@ use sim::{FaultSpec, McuConfig, SimMcu, World};
 
 use crate::paths;
 use crate::progress::Reporter;
-use crate::rigfile::RigFile;
+use config::RigFile;
 
 /// An open rig: the serial driver and the camera, and on the simulated rig
 /// the emulated microcontroller behind the pseudo-terminal.
@@ -117,66 +116,6 @@ impl Camera for RigCamera {
     }
 }
 
-/// The material a simulated capture scanned (its ground truth); `None` for
-/// a capture made on hardware.
-pub fn ground_truth(info: &store::CaptureInfo) -> Result<Option<Arc<dyn SvBrdf>>> {
-    match &info.simulated {
-        Some(s) => Ok(Some(sim_material(
-            s.material.as_deref().unwrap_or(&info.sample),
-            s.material_dir.as_deref().map(Path::new),
-        )?)),
-        None => Ok(None),
-    }
-}
-
-/// The simulated sample: a built-in material or a stored one.
-pub fn sim_material(name: &str, dir: Option<&Path>) -> Result<Arc<dyn SvBrdf>> {
-    if let Some(d) = dir {
-        let m = material::read(d).with_context(|| format!("--sim-material {}", d.display()))?;
-        let choice = if m.ndf.is_some() { material::ModelChoice::Tabulated } else { material::ModelChoice::Partial };
-        let view = material::MaterialView::new(Arc::new(m), choice)
-            .ok_or_else(|| anyhow!("{} has no NDF tables to render", d.display()))?;
-        return Ok(Arc::new(view));
-    }
-    sim::materials::builtin(name).ok_or_else(|| {
-        anyhow!(
-            "unknown sample '{name}': the simulated rig knows {} (or use --sim-material DIR)",
-            sim::materials::builtin_names()
-        )
-    })
-}
-
-/// The emulated MCU's configuration for a rig geometry and time scale.
-pub fn mcu_config(g: &RigGeometry, time_scale: f64) -> McuConfig {
-    McuConfig {
-        n_leds: g.bar.n_leds,
-        travel_min_um: (g.gantry.travel_min_mm * 1000.0).round() as i32,
-        travel_max_um: (g.gantry.travel_max_mm * 1000.0).round() as i32,
-        switch_min_um: (g.gantry.travel_min_mm * 1000.0).round() as i32 - 5_000,
-        profile: sim::world::MotionProfile {
-            speed_um_s: g.gantry.speed_mm_s as f64 * 1000.0,
-            accel_um_s2: g.gantry.accel_mm_s2 as f64 * 1000.0,
-        },
-        homing_speed_um_s: g.gantry.homing_speed_mm_s as f64 * 1000.0,
-        settle_ms: g.gantry.settle_ms as f64,
-        time_scale,
-        ..McuConfig::default()
-    }
-}
-
-/// The driver's expectations of motion, scaled like the emulator.
-pub fn rig_settings(g: &RigGeometry, time_scale: f64, led_current_ma: u16) -> RigSettings {
-    let k = time_scale.max(1e-6);
-    RigSettings {
-        led_current_ma,
-        speed_um_s: g.gantry.speed_mm_s as f64 * 1000.0 / k,
-        accel_um_s2: g.gantry.accel_mm_s2 as f64 * 1000.0 / (k * k),
-        settle_ms: g.gantry.settle_ms as f64 * k,
-        homing_speed_um_s: g.gantry.homing_speed_mm_s as f64 * 1000.0 / k,
-        ..RigSettings::default()
-    }
-}
-
 /// Start the simulated rig rendering `material` and connect the serial
 /// driver to it through a pseudo-terminal.
 pub async fn open_sim(
@@ -193,7 +132,7 @@ pub async fn open_sim(
     let n = COUNTER.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
     let link = dir.join(format!("sim-mcu-{}-{n}", std::process::id()));
     let world = World::new();
-    let mcfg = mcu_config(geometry, scale);
+    let mcfg = McuConfig::for_geometry(geometry, scale);
     let rest_um = mcfg.rest_um;
     let mcu = SimMcu::spawn_pty(mcfg, faults.clone(), world.clone(), Some(link.clone()))
         .await
@@ -215,7 +154,7 @@ pub async fn open_sim(
         rest_um,
     };
     let camera = tokio::task::block_in_place(|| SimCamera::new(cfg, material, world));
-    let mut settings = rig_settings(geometry, scale, rf.led_current_ma);
+    let mut settings = RigSettings::for_geometry(geometry, scale, rf.led_current_ma);
     if !rf.sim.realtime {
         // Motion is sped up by the time scale, so a late `MoveDone` is
         // checked for sooner. The reply timeout is the protocol's
@@ -258,7 +197,7 @@ pub async fn open_hardware(rf: &RigFile, geometry: &RigGeometry) -> Result<Sessi
     };
     let camera = open_v4l2(cam).await?;
     let connector = SerialConnector { locator: serial.locator.clone(), baud: serial.baud };
-    let settings = rig_settings(geometry, 1.0, rf.led_current_ma);
+    let settings = RigSettings::for_geometry(geometry, 1.0, rf.led_current_ma);
     let rig = Rig::open(connector, settings)
         .await
         .with_context(|| format!("cannot talk to rig '{}' on its serial port", rf.name))?;
@@ -266,7 +205,7 @@ pub async fn open_hardware(rf: &RigFile, geometry: &RigGeometry) -> Result<Sessi
 }
 
 #[cfg(target_os = "linux")]
-async fn open_v4l2(cam: &crate::rigfile::CameraSection) -> Result<RigCamera> {
+async fn open_v4l2(cam: &config::rigfile::CameraSection) -> Result<RigCamera> {
     use rig::camera::v4l2::{V4l2Camera, V4l2Options};
     let opts = V4l2Options {
         path: cam.device.clone(),
@@ -279,6 +218,6 @@ async fn open_v4l2(cam: &crate::rigfile::CameraSection) -> Result<RigCamera> {
 }
 
 #[cfg(not(target_os = "linux"))]
-async fn open_v4l2(_: &crate::rigfile::CameraSection) -> Result<RigCamera> {
+async fn open_v4l2(_: &config::rigfile::CameraSection) -> Result<RigCamera> {
     Err(anyhow!("hardware cameras are V4L2 devices and need Linux"))
 }

@@ -62,7 +62,7 @@ impl<'a> WhiteAccumulator<'a> {
         let ctx = self.ctx;
         let Some(q) = ctx.inputs.plan.light_index(shot.step, shot.led) else { return };
         let img = f.to_rgb();
-        let scale = 1.0 / (f.meta.exposure_us.max(1) as f32 * 1e-6 * f.meta.gain.max(1e-6));
+        let scale = 1.0 / (f.meta.exposure_us.max(1) as f32 * 1e-6 * f.meta.gain.max(crate::tol::MIN_DIVISOR));
         let k = std::f32::consts::PI / self.albedo;
         let black = self.black;
         let peak = &self.peak;
@@ -105,7 +105,7 @@ impl<'a> WhiteAccumulator<'a> {
                 let mut abs: Vec<f64> = residuals(&data, nq, np, &ls, &lf, dm).map(|r| r.abs()).collect();
                 let k = abs.len() / 2;
                 let mad = *abs.select_nth_unstable_by(k, |a, b| a.total_cmp(b)).1;
-                let limit = OUTLIER_SIGMAS * 1.4826 * mad.max(1e-6);
+                let limit = OUTLIER_SIGMAS * 1.4826 * mad.max(crate::tol::MIN_MAD);
                 for q in 0..nq {
                     for p in 0..np {
                         let (lm, lc) = data[q * np + p];

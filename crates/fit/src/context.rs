@@ -86,13 +86,13 @@ impl FitContext {
             });
             pixels.push(px);
             view.push(g.camera.view_dir(p));
-            flat.push(inputs.calibration.flat_at(&g.sample, p.truncate()).max(1e-3));
+            flat.push(inputs.calibration.flat_at(&g.sample, p.truncate()).max(crate::tol::MIN_FLAT));
         }
         let mut lights = Vec::with_capacity(inputs.plan.n_lights());
         for s in 0..inputs.plan.steps {
             let bar_x_mm = inputs.plan.step_um(s) as f32 / 1000.0;
             for &led in &inputs.plan.leds {
-                let scale = inputs.calibration.led_scale.get(led as usize).copied().unwrap_or(1.0).max(1e-9);
+                let scale = inputs.calibration.led_scale.get(led as usize).copied().unwrap_or(1.0).max(crate::tol::MIN_LED_SCALE);
                 lights.push(Light { step: s, led, bar_x_mm, pos: g.bar.led_position(bar_x_mm, led), scale });
             }
         }
@@ -116,11 +116,11 @@ impl FitContext {
     /// half vector (`dh = di / |i + o|`).
     pub fn half_vector_spacing(&self, p: usize, q: usize) -> f32 {
         let d = self.lights[q].pos - self.positions[p];
-        let r = d.length().max(1e-3);
+        let r = d.length().max(crate::tol::MIN_DISTANCE_MM);
         let i = d / r;
         let dx = self.step_spacing_mm * (1.0 - i.x * i.x).max(0.0).sqrt();
         let dy = self.led_spacing_mm * (1.0 - i.y * i.y).max(0.0).sqrt();
-        dx.max(dy) / r / (i + self.view[p]).length().max(1e-3)
+        dx.max(dy) / r / (i + self.view[p]).length().max(crate::tol::MIN_HALF_SUM)
     }
 
     pub fn n_points(&self) -> usize {

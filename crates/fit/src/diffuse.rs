@@ -40,7 +40,7 @@ pub fn lower_mode(values: &[f32], var: &[f32], scratch: &mut Vec<f32>) -> f32 {
     for _ in 0..ITERATIONS {
         let (mut sw, mut swx) = (0.0f64, 0.0f64);
         for (&x, &v) in values.iter().zip(var) {
-            let v = v.max(1e-20);
+            let v = v.max(crate::tol::MIN_VARIANCE);
             if (x - d).abs() <= WINDOW * v.sqrt() {
                 sw += 1.0 / v as f64;
                 swx += x as f64 / v as f64;
@@ -50,7 +50,7 @@ pub fn lower_mode(values: &[f32], var: &[f32], scratch: &mut Vec<f32>) -> f32 {
             break;
         }
         let next = (swx / sw) as f32;
-        if (next - d).abs() <= 1e-6 * d.abs().max(1e-12) {
+        if (next - d).abs() <= crate::tol::DIFFUSE_CONVERGED * d.abs().max(crate::tol::TINY_REFLECTANCE) {
             d = next;
             break;
         }

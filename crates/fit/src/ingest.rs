@@ -111,7 +111,7 @@ impl<'a> Ingest<'a> {
             return;
         }
         let img = frame.to_rgb();
-        let scale = 1.0 / (frame.meta.exposure_us.max(1) as f32 * 1e-6 * frame.meta.gain.max(1e-6));
+        let scale = 1.0 / (frame.meta.exposure_us.max(1) as f32 * 1e-6 * frame.meta.gain.max(crate::tol::MIN_DIVISOR));
         let darks: Vec<[f32; 3]> =
             ctx.pixels.iter().map(|px| px.map_or([0.0; 3], |px| self.dark_at(shot.exposure, px))).collect();
         let peak = &self.peak_irradiance;

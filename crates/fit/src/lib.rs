@@ -41,6 +41,7 @@ pub mod samples;
 pub mod select;
 pub mod settings;
 pub mod synth;
+pub mod tol;
 
 pub use context::{FitContext, FitInputs};
 pub use ingest::Ingest;

@@ -46,6 +46,7 @@ use serde::{Deserialize, Serialize};
 use crate::diffuse::lower_mode;
 use crate::pushpull::push_pull;
 use crate::settings::FitSettings;
+use crate::tol::MIN_FRESNEL_LOG;
 
 /// Luminance weights (Rec. 709) that define the scalar specular.
 pub const LUMA: [f32; 3] = [0.2126, 0.7152, 0.0722];
@@ -201,7 +202,7 @@ fn kernel_cells(grid: NdfGrid, centres: &[Vec3], h: Vec3, r: f32, out: &mut Vec<
         if t1 < theta_h - reach || t0 > theta_h + reach {
             continue;
         }
-        let s = t0.sin().max(1e-4);
+        let s = t0.sin().max(crate::tol::MIN_RING_SIN);
         let half = if s <= reach { std::f32::consts::PI } else { (reach / s).asin() * 1.3 };
         let (p_lo, p_hi) = if half >= std::f32::consts::PI {
             (0i64, np as i64 - 1)
@@ -343,7 +344,7 @@ fn fit_eta(table: &NdfTable, k_s: f32, o: Vec3, observed: &[f32], settings: &Fit
         pairs
             .iter()
             .map(|&(r, ca, cb, w)| {
-                let m = fresnel::dielectric(ca, eta).max(1e-9).ln() - fresnel::dielectric(cb, eta).max(1e-9).ln();
+                let m = fresnel::dielectric(ca, eta).max(MIN_FRESNEL_LOG).ln() - fresnel::dielectric(cb, eta).max(MIN_FRESNEL_LOG).ln();
                 w * (r - m) * (r - m)
             })
             .sum()
@@ -485,7 +486,7 @@ fn fit_point_with(
         return empty(kd, flags, stats);
     }
     let mut colour = [(col[0] / col_lum) as f32, (col[1] / col_lum) as f32, (col[2] / col_lum) as f32];
-    let cl = lum(colour).max(1e-6);
+    let cl = lum(colour).max(crate::tol::MIN_LUMINANCE);
     colour.iter_mut().for_each(|c| *c = finite_or(*c / cl, 1.0).max(0.0));
     // Half vectors and kernel cells are fixed across iterations.
     if s.centres.len() != grid.len() {
@@ -512,11 +513,11 @@ fn fit_point_with(
                    s: &mut Scratch,
                    stats: &mut PointStats|
      -> (Splatted, bool, Option<MaskingTable>) {
-        let f0 = eta.map(fresnel::dielectric_f0).unwrap_or(1.0).max(1e-6);
+        let f0 = eta.map(fresnel::dielectric_f0).unwrap_or(1.0).max(crate::tol::MIN_DIVISOR);
         s.fresnel.clear();
         for (k, x) in ps.samples.iter().enumerate() {
             let f = match eta {
-                Some(e) => (fresnel::dielectric(x.i.dot(s.h[k]), e) / f0).max(1e-3),
+                Some(e) => (fresnel::dielectric(x.i.dot(s.h[k]), e) / f0).max(crate::tol::MIN_FRESNEL_RATIO),
                 None => 1.0,
             };
             s.fresnel.push(f);

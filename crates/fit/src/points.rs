@@ -33,9 +33,9 @@ impl PointMaps {
 pub fn gather(ctx: &FitContext, store: &SampleStore, p: usize, settings: &FitSettings) -> PointSamples {
     let inputs = &ctx.inputs;
     let exposures = &inputs.plan.exposures_us;
-    let gain = inputs.plan.gain.max(1e-6);
+    let gain = inputs.plan.gain.max(crate::tol::MIN_DIVISOR);
     let read = inputs.calibration.read_noise_dn.iter().sum::<f32>() / 3.0;
-    let e_per_dn = inputs.e_per_dn.max(1e-6);
+    let e_per_dn = inputs.e_per_dn.max(crate::tol::MIN_DIVISOR);
     let mut ps = PointSamples { o: ctx.view[p], in_view: ctx.pixels[p].is_some(), ..PointSamples::default() };
     ps.samples.reserve(ctx.n_lights());
     for q in 0..ctx.n_lights() {
@@ -60,7 +60,7 @@ pub fn gather(ctx: &FitContext, store: &SampleStore, p: usize, settings: &FitSet
         let l = crate::partial::LUMA.iter().zip(&rho).map(|(w, r)| w * r).sum::<f32>().max(0.0);
         let var = k * k * read * read + k * l * gain / e_per_dn;
         let kernel_rad = settings.kernel_scale * ctx.half_vector_spacing(p, q);
-        ps.samples.push(Sample { i: g.i, rho, var: var.max(1e-20), kernel_rad });
+        ps.samples.push(Sample { i: g.i, rho, var: var.max(crate::tol::MIN_VARIANCE), kernel_rad });
     }
     ps
 }

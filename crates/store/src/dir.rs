@@ -41,6 +41,8 @@ pub enum StoreError {
     Locked { dir: String },
     #[error("frame {path} is damaged: {reason}")]
     BadFrame { path: String, reason: String },
+    #[error("{path} is not a calibration ({reason}); delete it or run `capture --calibrate` again")]
+    BadCalibration { path: String, reason: String },
 }
 
 fn io_err(what: &'static str, path: &Path, source: io::Error, dir: &Path) -> StoreError {

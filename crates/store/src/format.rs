@@ -61,7 +61,7 @@ pub struct CaptureInfo {
     /// The point grid the material is fitted on.
     pub grid: PointGrid,
     /// Quality preset and knobs, as the operator chose them: the
-    /// application's settings type (`cli::presets::Quality`), which reads
+    /// application's settings type (`config::Quality`), which reads
     /// them back on resume and refit; the fixture test
     /// (`tests/operator.rs`) keeps a capture of this format version
     /// readable.

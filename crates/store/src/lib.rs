@@ -17,8 +17,10 @@
 //! listed frame against its CRC-32, drops what does not verify, and
 //! reports which shots remain.
 
+mod calibrations;
 mod dir;
 mod format;
 
+pub use calibrations::CalibrationStore;
 pub use dir::{CaptureDir, DirLock, ResumeState, StoreError};
 pub use format::{CAPTURE_FORMAT_VERSION, CaptureInfo, CaptureStatus, FrameKind, ManifestEntry, SensorInfo, SimInfo};

@@ -5,9 +5,9 @@ use std::process::ExitCode;
 
 use clap::Parser;
 use cli::capture::{self, CaptureRequest};
-use cli::presets::Overrides;
+use config::Overrides;
 use cli::progress::Reporter;
-use cli::rigfile::RigFile;
+use config::RigFile;
 
 /// Scan a flat material sample and fit its spatially varying, anisotropic
 /// reflectance. With no rig configured it runs the simulated rig.
@@ -118,11 +118,11 @@ fn main() -> ExitCode {
     let result = rt.block_on(async {
         let mut stop = cli::stop_on_signals()?;
         if let Some(which) = &args.calibrate {
-            let (rf, _) = RigFile::load(args.rig.as_deref()).map_err(cli::usage)?;
-            let q = cli::presets::preset(&args.quality)
+            let (rf, _) = RigFile::load(args.rig.as_deref())?;
+            let q = config::preset(&args.quality)
                 .ok_or_else(|| cli::usage(anyhow::anyhow!("unknown quality '{}'", args.quality)))?;
             let g = capture::geometry_for(&rf, &q);
-            let store = cli::calib::CalibrationStore::new(args.calib_dir.as_deref(), &rf.name)?;
+            let store = cli::paths::calibrations(args.calib_dir.as_deref(), &rf.name)?;
             let c = tokio::select! {
                 c = capture::calibrate(&rf, &g, &store, &mut rep, which == "white") => c?,
                 _ = stop.wait_for(|s| *s) => return Err(cli::Interrupted.into()),

@@ -102,7 +102,7 @@ enum Cmd {
         out: std::path::PathBuf,
         /// Comma-separated settings (fast, fast-16-steps, fast-all-leds,
         /// balanced-no-synthesis, balanced, balanced-ndf-24, best).
-        #[arg(long, default_value = cli::tradeoff::DEFAULT_SETTINGS)]
+        #[arg(long, default_value = assess::tradeoff::DEFAULT_SETTINGS)]
         settings: String,
         /// Only redraw DIR/tradeoff.png from DIR/tradeoff.json.
         #[arg(long)]
@@ -291,7 +291,7 @@ fn main() -> ExitCode {
                 let mut rep = cli::progress::Reporter::auto(false);
                 let q = match quality {
                     Some(n) => Some(
-                        cli::presets::preset(&n).ok_or_else(|| cli::usage(anyhow::anyhow!("unknown quality '{n}'")))?,
+                        config::preset(&n).ok_or_else(|| cli::usage(anyhow::anyhow!("unknown quality '{n}'")))?,
                     ),
                     None => None,
                 };
@@ -305,8 +305,8 @@ fn main() -> ExitCode {
                 } else {
                     cli::progress::Mode::Plain
                 });
-                let opts = cli::eval::EvalOptions { render_px: px, holdout: !no_holdout, ..Default::default() };
-                let ev = tokio::task::block_in_place(|| cli::eval::evaluate(&dir, &opts, &mut rep))?;
+                let opts = assess::eval::EvalOptions { render_px: px, holdout: !no_holdout, ..Default::default() };
+                let ev = tokio::task::block_in_place(|| assess::eval::evaluate(&dir, &opts, &mut rep))?;
                 println!("{}", if json { serde_json::to_string(&ev)? } else { serde_json::to_string_pretty(&ev)? });
                 Ok(())
             }
@@ -315,24 +315,24 @@ fn main() -> ExitCode {
                 if !(8..=4096).contains(&px) {
                     return Err(cli::usage(anyhow::anyhow!("--px {px}: expected 8 to 4096")));
                 }
-                let light = cli::renders::Lighting::parse(&light).map_err(cli::usage)?;
+                let light = assess::renders::Lighting::parse(&light).map_err(cli::usage)?;
                 let camera =
-                    cli::renders::parse_pair(&camera).map_err(|e| cli::usage(anyhow::anyhow!("--camera: {e}")))?;
+                    assess::renders::parse_pair(&camera).map_err(|e| cli::usage(anyhow::anyhow!("--camera: {e}")))?;
                 let m =
                     std::sync::Arc::new(material::read(&dir).with_context(|| format!("reading {}", dir.display()))?);
-                cli::renders::model_by_name(&m, &model).map_err(cli::usage)?;
-                let scene = cli::renders::scene(camera, light, px);
-                tokio::task::block_in_place(|| cli::renders::render_to_file(m, &model, &scene, &out))?;
+                assess::renders::model_by_name(&m, &model).map_err(cli::usage)?;
+                let scene = assess::renders::scene(camera, light, px);
+                tokio::task::block_in_place(|| assess::renders::render_to_file(m, &model, &scene, &out))?;
                 println!("{}", out.display());
                 Ok(())
             }
             Cmd::Inspect { dir, json } => {
                 let dir = if dir.join("material").is_dir() { dir.join("material") } else { dir };
-                let i = cli::inspect::inspect(&dir)?;
+                let i = assess::inspect::inspect(&dir)?;
                 if json {
                     println!("{}", serde_json::to_string(&i)?);
                 } else {
-                    cli::inspect::print(&i);
+                    assess::inspect::print(&i);
                 }
                 Ok(())
             }
@@ -361,9 +361,9 @@ fn main() -> ExitCode {
             Cmd::Tradeoff { sample, out, settings, replot } => {
                 let mut rep = cli::progress::Reporter::new(cli::progress::Mode::Plain);
                 let rows = if replot {
-                    cli::tradeoff::replot(&out)?
+                    assess::tradeoff::replot(&out)?
                 } else {
-                    tokio::task::block_in_place(|| cli::tradeoff::run(&sample, &out, &settings, &mut rep))?
+                    tokio::task::block_in_place(|| assess::tradeoff::run(&sample, &out, &settings, &mut rep))?
                 };
                 println!(
                     "{:24} {:>9} {:>8} {:>9} {:>8} {:>8}  pareto",
@@ -389,7 +389,7 @@ fn main() -> ExitCode {
             Cmd::ExportGltf { dir, out } => {
                 let dir = if dir.join("material").is_dir() { dir.join("material") } else { dir };
                 let m = material::read(&dir).with_context(|| format!("reading {}", dir.display()))?;
-                for f in cli::gltf::export(&m, &out)? {
+                for f in assess::gltf::export(&m, &out)? {
                     println!("{}", f.display());
                 }
                 Ok(())
@@ -399,27 +399,27 @@ fn main() -> ExitCode {
                     cli::bench::realtime(&sample, steps, led_stride, fps).await
                 }
                 BenchCmd::Camera { sample, px, frames } => {
-                    tokio::task::block_in_place(|| cli::bench::camera(&sample, px, frames)).map(|_| ())
+                    tokio::task::block_in_place(|| assess::bench::camera(&sample, px, frames)).map(|_| ())
                 }
-                BenchCmd::Protocol { n } => cli::bench::protocol(n).await,
+                BenchCmd::Protocol { n } => assess::bench::protocol(n).await,
                 BenchCmd::SynthesisScale { sample, points, clusters, rotations, cone_deg } => {
                     tokio::task::block_in_place(|| {
-                        cli::bench::synthesis_scale(&sample, points, clusters, rotations, cone_deg)
+                        assess::bench::synthesis_scale(&sample, points, clusters, rotations, cone_deg)
                     })
                 }
                 BenchCmd::Fit { sample, points, steps, led_stride, ndf_theta, no_synthesis } => {
                     tokio::task::block_in_place(|| {
-                        cli::bench::fit(&sample, points, steps, led_stride, ndf_theta, !no_synthesis)
+                        assess::bench::fit(&sample, points, steps, led_stride, ndf_theta, !no_synthesis)
                     })
                 }
                 BenchCmd::Synthesis { sample, points, steps, modes, clusters } => {
-                    let modes = cli::bench::parse_modes(&modes)?;
-                    tokio::task::block_in_place(|| cli::bench::synthesis(&sample, points, steps, &modes, clusters))
+                    let modes = assess::bench::parse_modes(&modes)?;
+                    tokio::task::block_in_place(|| assess::bench::synthesis(&sample, points, steps, &modes, clusters))
                 }
             },
             Cmd::SimMcu { faults, link, time_scale } => {
                 let spec = sim::FaultSpec::parse(&faults).map_err(|e| cli::usage(anyhow::anyhow!("--faults: {e}")))?;
-                let cfg = cli::session::mcu_config(&setup::RigGeometry::default(), time_scale);
+                let cfg = sim::McuConfig::for_geometry(&setup::RigGeometry::default(), time_scale);
                 let mcu = sim::SimMcu::spawn_pty(cfg, spec, sim::World::new(), link).await?;
                 let path = mcu.device_path().ok_or_else(|| anyhow::anyhow!("the emulator has no device"))?;
                 println!("{}", path.display());

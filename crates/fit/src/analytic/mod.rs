@@ -195,7 +195,7 @@ fn solve_amplitudes(bd: &[f32], bs: &[f32], samples: &[Sample]) -> ([f32; 3], [f
     let mut kd = [0.0f32; 3];
     let mut ks = [0.0f32; 3];
     for c in 0..3 {
-        let (mut a, mut b) = if det.abs() > 1e-12 * (dd * ss).max(1e-30) {
+        let (mut a, mut b) = if det.abs() > crate::tol::SINGULAR_REL * (dd * ss).max(crate::tol::SINGULAR_ABS) {
             ((rd[c] * ss - rs[c] * ds) / det, (rs[c] * dd - rd[c] * ds) / det)
         } else {
             (if dd > 0.0 { rd[c] / dd } else { 0.0 }, 0.0)
@@ -227,7 +227,7 @@ fn point_amplitudes(model: AnalyticModel, shape: &[f32], samples: &[Sample], o: 
     let mut bs = vec![0.0f32; samples.len()];
     let mut k = 1.0;
     for _ in 0..if nonlinear { 4 } else { 1 } {
-        k = lum(ks_prev).max(1e-4);
+        k = lum(ks_prev).max(crate::tol::MIN_KS_START);
         let mut p = vec![0.0f32, 0.0, 0.0, k, k, k];
         p.extend_from_slice(shape);
         let Some(sm) = model.build(&p) else { return (vec![0.0; model.n_params()], None) };

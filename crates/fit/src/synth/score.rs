@@ -29,6 +29,8 @@ use brdf::ndf::{NdfGrid, NdfTable};
 use realfft::num_complex::Complex32;
 use realfft::{ComplexToReal, RealFftPlanner, RealToComplex};
 
+use crate::tol::MIN_MISSING_MASS;
+
 /// FFT plans for one grid and one number of rotation angles.
 pub struct Plans {
     pub grid: NdfGrid,
@@ -199,7 +201,7 @@ pub fn best_rotation(
     for s in 0..m {
         let get = |k: usize| scratch.out[k][s] * norm;
         let (a, b, cc, n, g) = (get(0), get(1), get(2), get(3), get(4));
-        if q.observed <= 0.0 || n < min_overlap * q.observed || g <= 0.01 * q.missing.max(1e-9) || b <= 0.0 || cc <= 0.0
+        if q.observed <= 0.0 || n < min_overlap * q.observed || g <= 0.01 * q.missing.max(MIN_MISSING_MASS as f32) || b <= 0.0 || cc <= 0.0
         {
             continue;
         }
@@ -212,7 +214,7 @@ pub fn best_rotation(
                 distance,
                 scale: (a / cc).clamp(0.1, 10.0),
                 overlap: n / q.observed,
-                gain: g / q.missing.max(1e-9),
+                gain: g / q.missing.max(MIN_MISSING_MASS as f32),
             });
         }
     }
@@ -277,7 +279,7 @@ pub fn score_at(
         observed += w * ro as f64;
         missing += w * rm as f64;
     }
-    if observed <= 0.0 || n < min_overlap as f64 * observed || gain <= 0.01 * missing.max(1e-9) || b <= 0.0 || c <= 0.0
+    if observed <= 0.0 || n < min_overlap as f64 * observed || gain <= 0.01 * missing.max(MIN_MISSING_MASS) || b <= 0.0 || c <= 0.0
     {
         return None;
     }
@@ -288,7 +290,7 @@ pub fn score_at(
         distance: (1.0 - rho2).sqrt() as f32,
         scale: (a / c).clamp(0.1, 10.0) as f32,
         overlap: (n / observed) as f32,
-        gain: (gain / missing.max(1e-9)) as f32,
+        gain: (gain / missing.max(MIN_MISSING_MASS)) as f32,
     })
 }
 

@@ -94,6 +94,22 @@ pub struct RigSettings {
     pub move_done_slack: Duration,
 }
 
+impl RigSettings {
+    /// What the driver expects of a rig with geometry `g` whose controller
+    /// runs `time_scale` times real time (a simulated rig; 1.0 on hardware).
+    pub fn for_geometry(g: &setup::RigGeometry, time_scale: f64, led_current_ma: u16) -> Self {
+        let k = time_scale.max(1e-6);
+        Self {
+            led_current_ma,
+            speed_um_s: g.gantry.speed_mm_s as f64 * 1000.0 / k,
+            accel_um_s2: g.gantry.accel_mm_s2 as f64 * 1000.0 / (k * k),
+            settle_ms: g.gantry.settle_ms as f64 * k,
+            homing_speed_um_s: g.gantry.homing_speed_mm_s as f64 * 1000.0 / k,
+            ..Self::default()
+        }
+    }
+}
+
 impl Default for RigSettings {
     fn default() -> Self {
         Self {

@@ -14,7 +14,7 @@ use anyhow::{Context, Result, anyhow, bail};
 use serde::{Deserialize, Serialize};
 
 use crate::eval::{EvalOptions, evaluate};
-use crate::progress::Reporter;
+use crate::Progress;
 
 /// The settings `refl tradeoff` knows: name, preset, extra `capture` args.
 pub const SETTINGS: &[(&str, &str, &[&str])] = &[
@@ -62,7 +62,7 @@ fn seconds(report: &crate::report::Report, key: &str) -> f64 {
 }
 
 /// Run the sweep.
-pub fn run(sample: &str, out: &Path, settings: &str, rep: &mut Reporter) -> Result<Vec<Row>> {
+pub fn run(sample: &str, out: &Path, settings: &str, rep: &mut dyn Progress) -> Result<Vec<Row>> {
     let chosen: Vec<&(&str, &str, &[&str])> = settings
         .split(',')
         .map(|n| {

@@ -3,10 +3,11 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context, Result, bail};
 use rig::mcu::PortLocator;
 use serde::{Deserialize, Serialize};
 use setup::RigGeometry;
+
+use crate::ConfigError;
 
 /// The embedded default (the simulated rig).
 pub const DEFAULT_RIG: &str = include_str!("../rigs/sim.toml");
@@ -99,13 +100,14 @@ pub struct RigFile {
 }
 
 impl RigFile {
-    pub fn parse(text: &str, source: &str) -> Result<Self> {
-        let r: RigFile =
-            toml::from_str(text).with_context(|| format!("{source} is not a valid rig file (see RIGFILE.md)"))?;
+    pub fn parse(text: &str, source: &str) -> Result<Self, ConfigError> {
+        let invalid = |message: String| ConfigError::Invalid { source_name: source.to_string(), message };
+        let r: RigFile = toml::from_str(text)
+            .map_err(|e| ConfigError::Syntax { source_name: source.to_string(), message: e.to_string() })?;
         if r.kind == RigKind::Hardware && (r.serial.is_none() || r.camera.is_none()) {
-            bail!("{source}: a hardware rig needs [serial] and [camera] sections (see RIGFILE.md)");
+            return Err(invalid("a hardware rig needs [serial] and [camera] sections".into()));
         }
-        r.validate().map_err(|e| anyhow::anyhow!("{source}: {e} (see RIGFILE.md)"))?;
+        r.validate().map_err(|e| invalid(e.to_string()))?;
         Ok(r)
     }
 
@@ -131,16 +133,13 @@ impl RigFile {
     }
 
     /// `--rig FILE`, else the system-wide file, else the embedded default.
-    pub fn load(path: Option<&Path>) -> Result<(Self, String)> {
+    pub fn load(path: Option<&Path>) -> Result<(Self, String), ConfigError> {
+        let read = |p: &Path| {
+            std::fs::read_to_string(p).map_err(|source| ConfigError::Read { path: p.display().to_string(), source })
+        };
         let (text, source) = match path {
-            Some(p) => (
-                std::fs::read_to_string(p).with_context(|| format!("cannot read rig file {}", p.display()))?,
-                p.display().to_string(),
-            ),
-            None if Path::new(SYSTEM_RIG).exists() => (
-                std::fs::read_to_string(SYSTEM_RIG).with_context(|| format!("cannot read {SYSTEM_RIG}"))?,
-                SYSTEM_RIG.to_string(),
-            ),
+            Some(p) => (read(p)?, p.display().to_string()),
+            None if Path::new(SYSTEM_RIG).exists() => (read(Path::new(SYSTEM_RIG))?, SYSTEM_RIG.to_string()),
             None => (DEFAULT_RIG.to_string(), "embedded simulated rig".to_string()),
         };
         Ok((Self::parse(&text, &source)?, source))
@@ -160,9 +159,9 @@ mod tests {
         let r = RigFile::parse(DEFAULT_RIG, "default").unwrap();
         assert_eq!(r.kind, RigKind::Sim);
         let e = RigFile::parse("name = 1", "x.toml").unwrap_err();
-        assert!(format!("{e:#}").contains("x.toml"));
+        assert!(e.to_string().contains("x.toml"));
         let hw = "name='a'\nkind='hardware'\nwhite_reference_albedo=0.99\nled_current_ma=200\n";
-        assert!(format!("{:#}", RigFile::parse(hw, "hw.toml").unwrap_err()).contains("[serial]"));
+        assert!(format!("{}", RigFile::parse(hw, "hw.toml").unwrap_err()).contains("[serial]"));
     }
 
     /// Every impossible value the issue found accepted is refused, naming
@@ -176,7 +175,7 @@ mod tests {
             ("[sim]\nfps = 0.0\n", "sim.fps"),
         ];
         for (extra, field) in cases {
-            let e = format!("{:#}", RigFile::parse(&format!("{base}{extra}"), "r.toml").unwrap_err());
+            let e = format!("{}", RigFile::parse(&format!("{base}{extra}"), "r.toml").unwrap_err());
             assert!(e.contains(field) && e.contains("must be") && e.contains("r.toml"), "{extra}: {e}");
         }
         let geometry = toml::to_string(&RigFile {
@@ -191,7 +190,7 @@ mod tests {
             ("speed_mm_s = 100.0", "speed_mm_s = 0.0", "geometry.gantry.speed_mm_s"),
         ] {
             assert!(geometry.contains(from), "{from} not in {geometry}");
-            let e = format!("{:#}", RigFile::parse(&geometry.replacen(from, to, 1), "r.toml").unwrap_err());
+            let e = format!("{}", RigFile::parse(&geometry.replacen(from, to, 1), "r.toml").unwrap_err());
             assert!(e.contains(field), "{to}: {e}");
         }
     }

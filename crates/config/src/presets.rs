@@ -139,33 +139,34 @@ pub struct Overrides {
 }
 
 impl Quality {
-    pub fn apply(mut self, o: &Overrides) -> anyhow::Result<Self> {
+    pub fn apply(mut self, o: &Overrides) -> Result<Self, crate::ConfigError> {
+        let ensure = |ok: bool, why: String| if ok { Ok(()) } else { Err(crate::ConfigError::Override(why)) };
         if let Some(v) = o.steps {
-            anyhow::ensure!((2..=1000).contains(&v), "--steps {v}: use 2..=1000");
+            ensure((2..=1000).contains(&v), format!("--steps {v}: use 2..=1000"))?;
             self.steps = v;
         }
         if let Some(v) = o.led_stride {
-            anyhow::ensure!((1..=20).contains(&v), "--led-stride {v}: use 1..=20");
+            ensure((1..=20).contains(&v), format!("--led-stride {v}: use 1..=20"))?;
             self.led_stride = v;
         }
         if let Some(v) = o.hdr {
-            anyhow::ensure!((1..=4).contains(&v), "--hdr {v}: use 1..=4 brackets");
+            ensure((1..=4).contains(&v), format!("--hdr {v}: use 1..=4 brackets"))?;
             self.exposures_us = (0..v).map(|k| 20_000 >> (3 * k)).collect();
         }
         if let Some(v) = o.grid {
-            anyhow::ensure!((4..=1024).contains(&v), "--grid {v}: use 4..=1024 points per side");
+            ensure((4..=1024).contains(&v), format!("--grid {v}: use 4..=1024 points per side"))?;
             self.grid = v;
         }
         if let Some(v) = o.camera_px {
-            anyhow::ensure!((32..=2048).contains(&v), "--camera-px {v}: use 32..=2048");
+            ensure((32..=2048).contains(&v), format!("--camera-px {v}: use 32..=2048"))?;
             self.sim_camera_px = v;
         }
         if let Some(v) = o.ndf_theta {
-            anyhow::ensure!((4..=128).contains(&v), "--ndf-theta {v}: use 4..=128 rings");
+            ensure((4..=128).contains(&v), format!("--ndf-theta {v}: use 4..=128 rings"))?;
             self.fit.grid = NdfGrid { n_theta: v, n_phi: 3 * v };
         }
         if let Some(v) = o.clusters {
-            anyhow::ensure!((1..=100_000).contains(&v), "--clusters {v}: use 1..=100000");
+            ensure((1..=100_000).contains(&v), format!("--clusters {v}: use 1..=100000"))?;
             self.synth.clusters = v;
         }
         Ok(self)

@@ -16,7 +16,7 @@ use render::scene::{EnvMap, Light, dir_from};
 use render::{Image, Scene};
 use setup::SampleArea;
 
-use crate::progress::Reporter;
+use crate::Progress;
 
 /// Distance of the evaluation camera and lights from the sample centre.
 pub const EVAL_DISTANCE_MM: f32 = 400.0;
@@ -126,7 +126,7 @@ pub fn write_previews(
     m: Arc<Material>,
     truth: Option<Arc<dyn SvBrdf>>,
     px: u32,
-    rep: &mut Reporter,
+    rep: &mut dyn Progress,
     stop: &dyn Fn() -> bool,
 ) -> Result<Vec<PathBuf>> {
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;

@@ -34,10 +34,10 @@ use serde::Serialize;
 use setup::SampleArea;
 use store::CaptureDir;
 
-use crate::presets::Quality;
-use crate::progress::Reporter;
+use config::Quality;
+use crate::Progress;
 use crate::renders::Lighting;
-use crate::session::ground_truth;
+use crate::truth::ground_truth;
 
 /// One novel viewing and lighting condition.
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -219,23 +219,20 @@ fn ndf_errors(m: &Material, which: ModelChoice, truth: &dyn SvBrdf, max_points: 
 }
 
 /// Refit without every 8th light and predict the held-out samples.
-fn holdout(dir: &Path, rep: &mut Reporter) -> Result<BTreeMap<String, Holdout>> {
-    rep.stage("eval", "hold-out: refitting without every 8th light");
+fn holdout(dir: &Path, rep: &mut dyn Progress) -> Result<BTreeMap<String, Holdout>> {
+    rep.stage("eval", "hold-out: refitting without every 8th light".into());
     let info = CaptureDir::read_info(dir)?;
     let (entries, _) = CaptureDir::read_manifest(dir)?;
     let q: Quality =
         serde_json::from_value(info.settings.clone()).context("capture.json lacks its quality settings")?;
     let mut settings = q.fit.clone();
     settings.holdout_every = Some(HOLDOUT_EVERY);
-    let ctx = fit::FitContext::new(crate::fitjob::fit_inputs(&info));
+    let ctx = fit::FitContext::new(crate::replay::fit_inputs(&info));
     // Ingest everything, keep the samples, fit without the held-out lights.
     let stages = fit::Stages { keep_samples: true, ..fit::Stages::default() };
     let mut pipeline = fit::Pipeline::new(&ctx, settings, stages);
-    crate::fitjob::for_each_frame(dir, &entries, &mut |msg| {
-        match msg {
-            crate::fitjob::FrameMsg::Dark { exposure, frame } => pipeline.push_dark(exposure, &frame),
-            crate::fitjob::FrameMsg::Shot { shot, frame } => pipeline.push_shot(&shot, &frame),
-        }
+    crate::replay::for_each_frame(dir, &entries, &mut |msg| {
+        msg.feed(&mut pipeline);
         Ok(())
     })?;
     let fitted = pipeline.finish(&|| false)?;
@@ -271,7 +268,7 @@ fn holdout(dir: &Path, rep: &mut Reporter) -> Result<BTreeMap<String, Holdout>> 
 pub const HOLDOUT_EVERY: u32 = 8;
 
 /// Evaluate a capture directory.
-pub fn evaluate(dir: &Path, opts: &EvalOptions, rep: &mut Reporter) -> Result<Evaluation> {
+pub fn evaluate(dir: &Path, opts: &EvalOptions, rep: &mut dyn Progress) -> Result<Evaluation> {
     let info = CaptureDir::read_info(dir)?;
     let mdir = dir.join("material");
     let m = Arc::new(material::read(&mdir).with_context(|| format!("{} has no fitted material", dir.display()))?);

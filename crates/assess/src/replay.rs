@@ -1,0 +1,57 @@
+//! A stored capture as the fitter's input: what the fitter must know of it,
+//! and its frames in the order they were stored. The capture job's fit,
+//! `refl fit` and the hold-out refit of `refl eval` all read captures so.
+
+use std::path::Path;
+
+use anyhow::{Context, Result};
+use frame::Frame;
+use setup::PlannedShot;
+
+/// A frame on its way to the fitter.
+#[derive(Debug)]
+pub enum FrameMsg {
+    Dark { exposure: u8, frame: Frame },
+    Shot { shot: PlannedShot, frame: Frame },
+}
+
+impl FrameMsg {
+    /// Hand this frame to a fit pipeline.
+    pub fn feed(self, pipeline: &mut fit::Pipeline<'_>) {
+        match self {
+            FrameMsg::Dark { exposure, frame } => pipeline.push_dark(exposure, &frame),
+            FrameMsg::Shot { shot, frame } => pipeline.push_shot(&shot, &frame),
+        }
+    }
+}
+
+/// Read a stored capture's frames in manifest order (dark frames were
+/// stored before the shots of their exposure) and hand each to `each`.
+pub fn for_each_frame(
+    root: &Path,
+    entries: &[store::ManifestEntry],
+    each: &mut dyn FnMut(FrameMsg) -> Result<()>,
+) -> Result<u64> {
+    let mut n = 0;
+    for e in entries {
+        let frame = store::CaptureDir::read_frame(root, e).with_context(|| format!("reading {}", e.file))?;
+        each(match e.frame {
+            store::FrameKind::Dark { exposure, .. } => FrameMsg::Dark { exposure, frame },
+            store::FrameKind::Shot(shot) => FrameMsg::Shot { shot, frame },
+        })?;
+        n += 1;
+    }
+    Ok(n)
+}
+
+/// What the fitter needs to know about a stored capture.
+pub fn fit_inputs(info: &store::CaptureInfo) -> fit::FitInputs {
+    fit::FitInputs {
+        geometry: info.geometry.clone(),
+        plan: info.plan.clone(),
+        calibration: info.calibration.clone(),
+        grid: info.grid,
+        e_per_dn: info.sensor.e_per_dn,
+        bit_depth: info.sensor.bit_depth,
+    }
+}
