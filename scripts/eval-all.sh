@@ -47,9 +47,13 @@ def f(v):
 analytic = {k: v["render_rel_rmse"] for k, v in m.items()
             if k not in ("synthesized", "partial", "auto") and v.get("render_rel_rmse") is not None}
 best = min(analytic, key=analytic.get) if analytic else None
-h = ev.get("holdout", {}).get("partial", {}).get("frame_rel_rmse")
-print(f"{name:24} {f(syn.get('ndf_rel_l2_observed')):>8} {f(syn.get('ndf_rel_l2_full')):>8} "
-      f"{r('synthesized'):>8} {r('auto'):>8} {(best or '-'):>18} {f(analytic.get(best)) if best else '-':>8} {f(h):>8}")
+ho = ev.get("holdout", {})
+hs = ho.get("synthesized") or ho.get("partial") or {}
+ha = ho.get("auto") or {}
+print(f"{name:24} {f(syn.get('ndf_rel_l2_observed')):>8} {f(syn.get('ndf_shape_observed')):>8} "
+      f"{f(syn.get('ndf_rel_l2_full')):>8} {r('synthesized'):>8} {r('auto'):>8} {(best or '-'):>18} "
+      f"{f(analytic.get(best)) if best else '-':>8} {f(hs.get('frame_rel_rmse')):>8} {f(ha.get('frame_rel_rmse')):>8} "
+      f"{f(hs.get('noise_floor')):>8}")
 EOF
 }
 
@@ -62,7 +66,7 @@ scan() { # name [capture args...]
   row "$name" "$dir"
 }
 
-printf '%-24s %8s %8s %8s %8s %18s %8s %8s\n' sample ndf_obs ndf_full synth auto best_analytic best hold_out
+printf '%-24s %8s %8s %8s %8s %8s %18s %8s %8s %8s %8s\n' sample ndf_obs shape ndf_full synth auto best_analytic best ho_synth ho_auto floor
 for s in $("$bin/capture" --list-samples | awk '{print $1}'); do
   scan "$s" --sample "$s"
 done

@@ -52,8 +52,7 @@ async fn a_real_speed_move_takes_its_physical_time_without_tripping_the_watchdog
     let t0 = Instant::now();
     rig.move_to(to).await.expect("full-travel move");
     let took = t0.elapsed();
-    let physical =
-        Duration::from_secs_f64(cfg.profile.duration_s((to - from) as f64) + cfg.settle_ms / 1000.0);
+    let physical = Duration::from_secs_f64(cfg.profile.duration_s((to - from) as f64) + cfg.settle_ms / 1000.0);
     assert!(physical > Duration::from_millis(WATCHDOG_MS as u64), "the move must outlast the watchdog");
     // MoveDone is sent when the carriage has settled; the driver may learn
     // of it no earlier, and no later than its own slack (after which it

@@ -53,7 +53,7 @@ const E_PER_DN: f32 = 4.0;
 const EXPOSURE_S: f32 = 0.02;
 
 /// Cheap deterministic noise in [-1, 1] (a hash of the sample index).
-fn noise(k: u64) -> f32 {
+fn unit_noise(k: u64) -> f32 {
     let mut x = k.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ 0xD1B5_4A32_D192_ED03;
     x ^= x >> 31;
     x = x.wrapping_mul(0xBF58_476D_1CE4_E5B9);
@@ -63,7 +63,9 @@ fn noise(k: u64) -> f32 {
 
 /// The sample store of `material` on a `side` x `side` grid lit from
 /// `steps` gantry positions x every `led_stride`-th LED of the default rig.
-pub fn synthetic(material: Arc<dyn SvBrdf>, side: u32, steps: u32, led_stride: u32) -> Result<Synthetic> {
+/// With `noise` false every sample is exact (the fitter still weights
+/// samples by the noise model's variance).
+pub fn synthetic(material: Arc<dyn SvBrdf>, side: u32, steps: u32, led_stride: u32, noise: bool) -> Result<Synthetic> {
     let mut g = RigGeometry::default();
     // A camera fine enough that every point has its own pixel.
     g.camera.width = (side * 5 / 4).max(64);
@@ -117,7 +119,8 @@ pub fn synthetic(material: Arc<dyn SvBrdf>, side: u32, steps: u32, led_stride: u
             *r = std::array::from_fn(|c| {
                 let sd = (k * k * READ_NOISE_DN * READ_NOISE_DN + k * out[c].max(0.0) / E_PER_DN).sqrt();
                 // Uniform on [-sqrt 3, sqrt 3]: unit variance.
-                f16::from_f32(out[c] + sd * 1.732 * noise(h + c as u64))
+                let e = if noise { sd * 1.732 * unit_noise(h + c as u64) } else { 0.0 };
+                f16::from_f32(out[c] + e)
             });
             *f = 0;
         });
@@ -138,7 +141,7 @@ pub fn fit(sample: &str, side: u32, steps: u32, led_stride: u32, ndf_theta: u32,
         rayon::current_num_threads()
     );
     let t = Instant::now();
-    let s = synthetic(material, side, steps, led_stride)?;
+    let s = synthetic(material, side, steps, led_stride, true)?;
     let n = s.ctx.n_points();
     println!(
         "  synthetic samples: {} lights x {n} points = {:.2} G samples, {:.2} GB store, {:.1} s (not a fitter stage); peak memory {}",
@@ -179,7 +182,7 @@ pub fn fit(sample: &str, side: u32, steps: u32, led_stride: u32, ndf_theta: u32,
 
 /// Pooled relative L2 error of `tables` against the truth over the whole
 /// hemisphere, over points with specular.
-fn ndf_error(s: &Synthetic, flags: &[u32], tables: &TableSet) -> f64 {
+pub fn ndf_error(s: &Synthetic, flags: &[u32], tables: &TableSet) -> f64 {
     let grid = tables.grid();
     let (mut num, mut den) = (0.0f64, 0.0f64);
     for p in 0..tables.len() {
@@ -203,7 +206,7 @@ fn ndf_error(s: &Synthetic, flags: &[u32], tables: &TableSet) -> f64 {
 /// `refl bench synthesis`.
 pub fn synthesis(sample: &str, side: u32, steps: u32, modes: &[SearchMode], clusters: Option<u32>) -> Result<()> {
     let material = crate::truth::sim_material(sample, None)?;
-    let s = synthetic(material, side, steps, 1)?;
+    let s = synthetic(material, side, steps, 1, true)?;
     let n = s.ctx.n_points();
     let settings = FitSettings::default();
     let op = MaskingOperator::new(settings.grid);

@@ -26,7 +26,8 @@ use std::time::Instant;
 
 use anyhow::{Context, Result, anyhow};
 use brdf::Brdf;
-use brdf::ndf::{MaskingOperator, NdfTable};
+use brdf::ndf::NdfTable;
+use config::Quality;
 use glam::Vec3;
 use material::{Material, MaterialView, ModelChoice, NdfKind, SvBrdf};
 use render::{Image, Light, Scene};
@@ -34,7 +35,6 @@ use serde::Serialize;
 use setup::SampleArea;
 use store::CaptureDir;
 
-use config::Quality;
 use crate::Progress;
 use crate::renders::Lighting;
 use crate::truth::ground_truth;
@@ -86,14 +86,28 @@ pub fn scene_for(c: &Condition, px: u32) -> Scene {
 #[derive(Clone, Debug, Default, PartialEq, Serialize)]
 pub struct ModelScore {
     pub render_rel_rmse: Option<f64>,
+    /// Relative L2 of the fitted NDF against the true one on the cells the
+    /// fit observed, both as stored (each normalised over the hemisphere).
     pub ndf_rel_l2_observed: Option<f64>,
     pub ndf_rel_l2_full: Option<f64>,
+    /// The same on the observed cells after the best scale of the fitted
+    /// table per point: the error of its shape alone. `ndf_scale_observed`
+    /// is the pooled best scale (1 when the normalisation agrees; a table
+    /// whose unobserved part was extrapolated with too much or too little
+    /// mass is off by it).
+    pub ndf_shape_observed: Option<f64>,
+    pub ndf_scale_observed: Option<f64>,
     pub fit_seconds: Option<f64>,
 }
 
 #[derive(Clone, Debug, Default, PartialEq, Serialize)]
 pub struct Holdout {
+    /// Relative RMS error of the model's prediction of the held-out samples.
     pub frame_rel_rmse: Option<f64>,
+    /// The true material's error on the same samples (simulated captures):
+    /// what a perfect model scores against these noisy, calibrated samples.
+    /// A fitted model can score below it by absorbing a calibration bias.
+    pub noise_floor: Option<f64>,
 }
 
 #[derive(Clone, Debug, Default, PartialEq, Serialize)]
@@ -186,21 +200,32 @@ fn unobserved_fraction(m: &Material, c: &Condition, sample: &SampleArea) -> f64 
     if n == 0 { 0.0 } else { out as f64 / n as f64 }
 }
 
-fn ndf_errors(m: &Material, which: ModelChoice, truth: &dyn SvBrdf, max_points: usize) -> (Option<f64>, Option<f64>) {
+/// NDF errors of one model against the truth, pooled over points.
+#[derive(Clone, Copy, Debug, Default)]
+struct NdfErrors {
+    observed: Option<f64>,
+    full: Option<f64>,
+    shape_observed: Option<f64>,
+    scale_observed: Option<f64>,
+}
+
+fn ndf_errors(m: &Material, which: ModelChoice, truth: &dyn SvBrdf, max_points: usize) -> NdfErrors {
     let set = match which {
         ModelChoice::Tabulated => m.ndf.as_ref(),
         ModelChoice::Partial => m.partial.as_ref().map(|pf| &pf.tables).or(m.ndf.as_ref()),
         _ => None,
     };
-    let Some(set) = set else { return (None, None) };
+    let Some(set) = set else { return NdfErrors::default() };
     let observed_set = m.partial.as_ref().map_or(set, |pf| &pf.tables);
     let n = m.n_points();
     let stride = n.div_ceil(max_points.max(1)).max(1);
     let grid = set.grid();
-    let sums: Vec<(f64, f64, f64, f64)> = (0..n)
+    let np = grid.n_phi as usize;
+    // Per point, in the table's cosine measure: on the observed cells
+    // sum (a-b)^2, sum b^2, the best-scale residual, sum ab, sum aa; then
+    // over the hemisphere sum (a-b)^2, sum b^2.
+    let sums: Vec<[f64; 7]> = (0..n)
         .step_by(stride)
-        .collect::<Vec<_>>()
-        .into_iter()
         .filter_map(|p| {
             let pos = m.grid.position_of(&m.sample, p);
             let tp = truth.at(pos);
@@ -209,18 +234,44 @@ fn ndf_errors(m: &Material, which: ModelChoice, truth: &dyn SvBrdf, max_points: 
             t.normalize();
             let est = set.get(p);
             let obs = observed_set.get(p);
-            let (no, do_) = est.l2_sums(&t, |c| obs.coverage().get(c))?;
-            let (nf, df) = est.l2_sums(&t, |_| true)?;
-            Some((no, do_, nf, df))
+            let mut x = [0.0f64; 7];
+            for (k, (&a, &b)) in est.values().iter().zip(t.values()).enumerate() {
+                let w = grid.cos_measure(k / np) as f64;
+                let (a, b) = (a as f64, b as f64);
+                x[5] += w * (a - b) * (a - b);
+                x[6] += w * b * b;
+                if obs.coverage().get(k) {
+                    x[0] += w * (a - b) * (a - b);
+                    x[1] += w * b * b;
+                    x[3] += w * a * b;
+                    x[4] += w * a * a;
+                }
+            }
+            // min over s of sum w (s a - b)^2 = sum b^2 - (sum ab)^2 / sum a^2.
+            x[2] = if x[4] > 0.0 { (x[1] - x[3] * x[3] / x[4]).max(0.0) } else { x[1] };
+            Some(x)
         })
         .collect();
-    let tot = sums.iter().fold((0.0, 0.0, 0.0, 0.0), |a, s| (a.0 + s.0, a.1 + s.1, a.2 + s.2, a.3 + s.3));
-    ((tot.1 > 0.0).then(|| (tot.0 / tot.1).sqrt()), (tot.3 > 0.0).then(|| (tot.2 / tot.3).sqrt()))
+    let mut tot = [0.0f64; 7];
+    for x in &sums {
+        tot.iter_mut().zip(x).for_each(|(t, v)| *t += v);
+    }
+    let rel = |num: f64, den: f64| (den > 0.0).then(|| (num / den).sqrt());
+    NdfErrors {
+        observed: rel(tot[0], tot[1]),
+        full: rel(tot[5], tot[6]),
+        shape_observed: rel(tot[2], tot[1]),
+        scale_observed: (tot[4] > 0.0).then(|| tot[3] / tot[4]),
+    }
 }
 
-/// Refit without every 8th light and predict the held-out samples.
+/// Refit without every [`HOLDOUT_EVERY`]-th gantry step (all its lights)
+/// and predict the held-out samples with every model of the refitted
+/// material. For a simulated capture the true material predicts them too:
+/// its error is the noise floor, what a perfect model scores against these
+/// noisy, calibrated samples.
 fn holdout(dir: &Path, rep: &mut dyn Progress) -> Result<BTreeMap<String, Holdout>> {
-    rep.stage("eval", "hold-out: refitting without every 8th light".into());
+    rep.stage("eval", format!("hold-out: refitting without every {HOLDOUT_EVERY}th gantry step"));
     let info = CaptureDir::read_info(dir)?;
     let (entries, _) = CaptureDir::read_manifest(dir)?;
     let q: Quality =
@@ -229,42 +280,54 @@ fn holdout(dir: &Path, rep: &mut dyn Progress) -> Result<BTreeMap<String, Holdou
     settings.holdout_every = Some(HOLDOUT_EVERY);
     let ctx = fit::FitContext::new(crate::replay::fit_inputs(&info));
     // Ingest everything, keep the samples, fit without the held-out lights.
-    let stages = fit::Stages { keep_samples: true, ..fit::Stages::default() };
+    let stages = fit::Stages { keep_samples: true, ..q.stages(&config::Overrides::default()) };
     let mut pipeline = fit::Pipeline::new(&ctx, settings, stages);
     crate::replay::for_each_frame(dir, &entries, &mut |msg| {
         msg.feed(&mut pipeline);
         Ok(())
     })?;
-    let fitted = pipeline.finish(&|| false)?;
-    let (maps, store) = (&fitted.maps, fitted.samples.as_ref().ok_or_else(|| anyhow!("the fit kept no samples"))?);
-    let op = MaskingOperator::new(fitted.settings.grid);
-    let (mut num, mut den) = (0.0f64, 0.0f64);
+    let mut fitted = pipeline.finish(&|| false)?;
+    let store = fitted.samples.take().ok_or_else(|| anyhow!("the fit kept no samples"))?;
+    let m = Arc::new(crate::replay::material_from(&fitted, &info, &q));
+    let mut predictors: Vec<(String, Arc<dyn SvBrdf>)> = Vec::new();
+    for (name, choice) in model_names(&m) {
+        let view = MaterialView::new(m.clone(), choice).ok_or_else(|| anyhow!("material lacks model {name}"))?;
+        predictors.push((name, Arc::new(view)));
+    }
+    let truth = ground_truth(&info)?;
+    let held: Vec<usize> = (0..ctx.n_lights()).filter(|&q| fitted.settings.holds_out(&ctx.inputs.plan, q)).collect();
+    // (sum (pred - rho)^2, sum rho^2) per predictor, the truth last.
+    let mut sums = vec![(0.0f64, 0.0f64); predictors.len() + 1];
     for p in 0..ctx.n_points() {
-        let model = material::PointMaterial::fitted(
-            Vec3::from(maps.kd[p]),
-            Vec3::from(maps.ks[p]),
-            maps.eta[p],
-            material::PointMaterial::table_ndf(maps.tables.get(p), &op),
-        );
-        for q in (0..ctx.n_lights()).filter(|q| *q as u32 % HOLDOUT_EVERY == 0) {
+        let x = ctx.positions[p];
+        let pos = glam::Vec2::new(x.x, x.y);
+        let mut at: Vec<material::PointMaterial> = predictors.iter().map(|(_, v)| v.at(pos)).collect();
+        at.push(truth.as_ref().map_or(material::PointMaterial::Diffuse { kd: Vec3::ZERO }, |t| t.at(pos)));
+        for &q in &held {
             let (rho, fl) = store.get(q, p);
             if fl & fit::samples::flag::UNUSABLE != 0 {
                 continue;
             }
             let Some(g) = ctx.sample(p, q) else { continue };
-            let pred = model.eval(g.i, ctx.view[p]);
-            for c in 0..3 {
-                num += ((pred[c] - rho[c]) as f64).powi(2);
-                den += (rho[c] as f64).powi(2);
+            for (s, model) in sums.iter_mut().zip(&at) {
+                let pred = model.eval(g.i, ctx.view[p]);
+                for c in 0..3 {
+                    s.0 += ((pred[c] - rho[c]) as f64).powi(2);
+                    s.1 += (rho[c] as f64).powi(2);
+                }
             }
         }
     }
-    let mut out = BTreeMap::new();
-    out.insert("partial".to_string(), Holdout { frame_rel_rmse: (den > 0.0).then(|| (num / den).sqrt()) });
-    Ok(out)
+    let rel = |s: (f64, f64)| (s.1 > 0.0).then(|| (s.0 / s.1).sqrt());
+    let floor = if truth.is_some() { rel(sums[predictors.len()]) } else { None };
+    Ok(predictors
+        .iter()
+        .zip(&sums)
+        .map(|((name, _), &s)| (name.clone(), Holdout { frame_rel_rmse: rel(s), noise_floor: floor }))
+        .collect())
 }
 
-/// Every k-th light is held out.
+/// Every k-th gantry step is held out.
 pub const HOLDOUT_EVERY: u32 = 8;
 
 /// Evaluate a capture directory.
@@ -314,9 +377,11 @@ pub fn evaluate(dir: &Path, opts: &EvalOptions, rep: &mut dyn Progress) -> Resul
                     d.render_rel_rmse.insert(name.clone(), e);
                 }
             }
-            let (o, f) = ndf_errors(&m, choice, truth.as_ref(), opts.max_ndf_points);
-            score.ndf_rel_l2_observed = o;
-            score.ndf_rel_l2_full = f;
+            let e = ndf_errors(&m, choice, truth.as_ref(), opts.max_ndf_points);
+            score.ndf_rel_l2_observed = e.observed;
+            score.ndf_rel_l2_full = e.full;
+            score.ndf_shape_observed = e.shape_observed;
+            score.ndf_scale_observed = e.scale_observed;
         }
         rep.stage("eval", format!("{name}: {:?} ({:.1} s)", score.render_rel_rmse, t0.elapsed().as_secs_f64()));
         ev.models.insert(name, score);

@@ -8,7 +8,8 @@
 //!   that refits one.
 //! - `report`: `report.json`, typed and versioned.
 //! - `tradeoff`: the speed/accuracy sweep over the quality presets.
-//! - `bench`: the fitter's and the simulator's benchmarks.
+//! - `bench`: the fitter's and the simulator's benchmarks; `budget`: the
+//!   fitter's error by source.
 //! - `inspect`, `gltf`: a material's summary and its glTF export.
 //!
 //! These are the application's tools, not its job: they sit below
@@ -16,6 +17,7 @@
 //! report errors with `anyhow` for a person to read.
 
 pub mod bench;
+pub mod budget;
 pub mod eval;
 pub mod gltf;
 pub mod inspect;

@@ -1,6 +1,7 @@
-//! A stored capture as the fitter's input: what the fitter must know of it,
-//! and its frames in the order they were stored. The capture job's fit,
-//! `refl fit` and the hold-out refit of `refl eval` all read captures so.
+//! A stored capture as the fitter's input (what the fitter must know of it,
+//! and its frames in the order they were stored), and the fit's result as
+//! the capture's material. The capture job's fit, `refl fit` and the
+//! hold-out refit of `refl eval` all go through here.
 
 use std::path::Path;
 
@@ -53,5 +54,56 @@ pub fn fit_inputs(info: &store::CaptureInfo) -> fit::FitInputs {
         grid: info.grid,
         e_per_dn: info.sensor.e_per_dn,
         bit_depth: info.sensor.bit_depth,
+    }
+}
+
+/// The material the fit describes.
+pub fn material_from(out: &fit::FitResult, info: &store::CaptureInfo, q: &config::Quality) -> material::Material {
+    let maps = &out.maps;
+    material::Material {
+        name: info.sample.clone(),
+        sample: info.geometry.sample,
+        grid: info.grid,
+        kd: maps.kd.clone(),
+        ks: maps.ks.clone(),
+        eta: maps.eta.clone(),
+        flags: maps.flags.clone(),
+        ndf: Some(maps.tables.clone()),
+        ndf_kind: if out.partial.is_some() { material::NdfKind::Synthesized } else { material::NdfKind::Partial },
+        partial: out.partial.as_ref().map(|p| material::PartialFit {
+            tables: p.tables.clone(),
+            ks: p.ks.clone(),
+            eta: p.eta.clone(),
+        }),
+        models: out
+            .models
+            .iter()
+            .map(|f| {
+                (
+                    f.model.name().to_string(),
+                    material::ModelMap { model: f.model, params: f.params.clone(), fit_seconds: f.seconds },
+                )
+            })
+            .collect(),
+        choice: out.selection.as_ref().map(|s| material::ChoiceMap {
+            choice: s
+                .choice
+                .iter()
+                .map(|&c| material::Choice::from_u8(c).unwrap_or(material::Choice::Tabulated))
+                .collect(),
+            isotropic_model: s.isotropic,
+            anisotropic_model: s.anisotropic,
+        }),
+        provenance: serde_json::json!({
+            "capture_created_utc": info.created_utc,
+            "sample": info.sample,
+            "quality": q,
+            "calibration": info.calibration.id,
+            "simulated": info.simulated,
+            "fit_seconds": {
+                "partial": out.timings.ingest_s + out.timings.points_s,
+                "synthesized": out.timings.ingest_s + out.timings.points_s + out.timings.synthesis_s,
+            },
+        }),
     }
 }

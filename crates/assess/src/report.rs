@@ -86,6 +86,9 @@ pub struct FitReport {
     pub ndf_tables_mb: f64,
     pub material_disk_mb: f64,
     pub synthesis: Option<fit::synth::SynthStats>,
+    /// Points pooled into their material's NDF, and those that kept their own.
+    #[serde(default)]
+    pub pooling: Option<fit::pooled::PoolStats>,
     pub analytic: Vec<AnalyticReport>,
     pub model_choice: Option<fit::select::SelectionSummary>,
 }

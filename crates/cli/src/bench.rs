@@ -66,18 +66,11 @@ pub async fn realtime(sample: &str, steps: u32, led_stride: u8, fps: f32) -> Res
     let info = store::CaptureDir::read_info(&summary.dir)?;
     let plan = &info.plan;
     let frames = plan.shots().len() + plan.dark_frames as usize * plan.exposures_us.len();
-    let cfg = sim::McuConfig::for_geometry(&info.geometry, 1.0);
-    let step_um = if plan.steps > 1 {
-        (plan.last_mm - plan.first_mm).abs() as f64 * 1000.0 / (plan.steps - 1) as f64
-    } else {
-        0.0
-    };
-    let moves_s = (plan.steps.saturating_sub(1)) as f64 * (cfg.profile.duration_s(step_um) + cfg.settle_ms / 1000.0);
-    let limit = frames as f64 / fps as f64 + moves_s;
+    let limit = plan.physical_seconds(&info.geometry, fps);
+    let frames_s = frames as f64 / fps as f64;
     let wall = (end - start).as_secs_f64();
-    println!("  frames: {frames} ({:.2} s at {fps}/s); moves and settling: {moves_s:.2} s", frames as f64 / fps as f64);
+    println!("  frames: {frames} ({frames_s:.2} s at {fps}/s); moves and settling: {:.2} s", limit - frames_s);
     println!("  physical limit {limit:.2} s; wall time {wall:.2} s; ratio {:.3} (target 1.05 or less)", wall / limit);
     let _ = std::fs::remove_dir_all(&dir);
     Ok(())
 }
-

@@ -38,7 +38,12 @@ pub async fn dark<K: Connector, C: Camera>(
     if let Some(why) = stats.light_leak() {
         rep.warn(why);
     }
-    Ok(Calibration { id: crate::paths::utc_stamp(), black_level: stats.black_level, read_noise_dn: stats.read_noise, ..base })
+    Ok(Calibration {
+        id: crate::paths::utc_stamp(),
+        black_level: stats.black_level,
+        read_noise_dn: stats.read_noise,
+        ..base
+    })
 }
 
 /// White scan: the white reference under every LED at every step of a

@@ -32,15 +32,15 @@ use tokio::sync::watch;
 
 use crate::Interrupted;
 use crate::calib;
-use store::CalibrationStore;
 use crate::fitjob::{FitJob, FrameMsg};
 use crate::output;
-use config::presets::{self, Overrides, Quality};
 use crate::progress::{Event, Reporter};
-use assess::report::{self, Report};
-use config::{RigFile, RigKind};
 use crate::session;
+use assess::report::{self, Report};
 use assess::truth::{ground_truth, sim_material};
+use config::presets::{self, Overrides, Quality};
+use config::{RigFile, RigKind};
+use store::CalibrationStore;
 
 /// What to capture (also the daemon's job request).
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -436,8 +436,7 @@ pub async fn run(req: CaptureRequest, rep: &mut Reporter, cancel: watch::Receive
         e_per_dn: s.e_per_dn,
         bit_depth: info.sensor.bit_depth,
     };
-    let job =
-        (!req.no_fit).then(|| FitJob::start(fit_inputs, q.fit.clone(), crate::output::stages(&q, &req.overrides)));
+    let job = (!req.no_fit).then(|| FitJob::start(fit_inputs, q.fit.clone(), q.stages(&req.overrides)));
     if let Some(job) = &job {
         if resume {
             let stop = output::stop_requested(&cancel);

@@ -5,18 +5,15 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{Context, Result};
-use material::{Material, NdfKind};
+use assess::report::{self, Report};
+use config::{Overrides, Quality};
+use material::Material;
 use store::CaptureInfo;
-
 use tokio::sync::watch;
 
 use crate::Interrupted;
-use fit::{FitResult, Stages};
-
 use crate::fitjob::FitJob;
-use config::{Overrides, Quality};
 use crate::progress::Reporter;
-use assess::report::{self, Report};
 
 /// Flag counts over the grid, by name.
 pub fn flag_counts(flags: &[u32]) -> std::collections::BTreeMap<String, usize> {
@@ -24,66 +21,6 @@ pub fn flag_counts(flags: &[u32]) -> std::collections::BTreeMap<String, usize> {
         .iter()
         .map(|&(bit, name)| (name.to_string(), flags.iter().filter(|&&f| f & bit != 0).count()))
         .collect()
-}
-
-/// The fitting stages a quality preset asks for, minus those switched off.
-pub fn stages(q: &Quality, o: &Overrides) -> Stages {
-    Stages {
-        synth: (!o.no_synthesis).then(|| q.synth.clone()),
-        analytic: (!o.no_analytic && !q.analytic.models.is_empty()).then(|| q.analytic.clone()),
-        keep_samples: false,
-    }
-}
-
-/// The material the fit describes.
-pub fn material_from(out: &FitResult, info: &CaptureInfo, q: &Quality) -> Material {
-    let maps = &out.maps;
-    Material {
-        name: info.sample.clone(),
-        sample: info.geometry.sample,
-        grid: info.grid,
-        kd: maps.kd.clone(),
-        ks: maps.ks.clone(),
-        eta: maps.eta.clone(),
-        flags: maps.flags.clone(),
-        ndf: Some(maps.tables.clone()),
-        ndf_kind: if out.partial.is_some() { NdfKind::Synthesized } else { NdfKind::Partial },
-        partial: out.partial.as_ref().map(|p| material::PartialFit {
-            tables: p.tables.clone(),
-            ks: p.ks.clone(),
-            eta: p.eta.clone(),
-        }),
-        models: out
-            .models
-            .iter()
-            .map(|f| {
-                (
-                    f.model.name().to_string(),
-                    material::ModelMap { model: f.model, params: f.params.clone(), fit_seconds: f.seconds },
-                )
-            })
-            .collect(),
-        choice: out.selection.as_ref().map(|s| material::ChoiceMap {
-            choice: s
-                .choice
-                .iter()
-                .map(|&c| material::Choice::from_u8(c).unwrap_or(material::Choice::Tabulated))
-                .collect(),
-            isotropic_model: s.isotropic,
-            anisotropic_model: s.anisotropic,
-        }),
-        provenance: serde_json::json!({
-            "capture_created_utc": info.created_utc,
-            "sample": info.sample,
-            "quality": q,
-            "calibration": info.calibration.id,
-            "simulated": info.simulated,
-            "fit_seconds": {
-                "partial": out.timings.ingest_s + out.timings.points_s,
-                "synthesized": out.timings.ingest_s + out.timings.points_s + out.timings.synthesis_s,
-            },
-        }),
-    }
 }
 
 /// Was `e` caused by a full disk? (An ENOSPC anywhere in its chain of
@@ -138,7 +75,7 @@ pub async fn finish_fit(
             _ = watch_stop.wait_for(|s| *s) => return Err(Interrupted.into()),
         };
         rep.stage("fit", format!("{} points in {:.1} s after the last frame", out.maps.len(), out.timings.points_s));
-        let mut m = material_from(&out, info, q);
+        let mut m = assess::replay::material_from(&out, info, q);
         if let (Some(p), Some(prov)) = (&report.partial, m.provenance.as_object_mut()) {
             prov.insert("partial_capture".into(), serde_json::to_value(p)?);
         }
@@ -152,6 +89,7 @@ pub async fn finish_fit(
         report.time("fit_ingest_s", out.timings.ingest_s);
         report.time("fit_points_s", out.timings.points_s);
         report.time("fit_synthesis_s", out.timings.synthesis_s);
+        report.time("fit_pool_s", out.timings.pool_s);
         report.time("fit_analytic_s", out.timings.analytic_s);
         report.time("fit_selection_s", out.timings.selection_s);
         if let Some(sel) = &out.selection {
@@ -183,6 +121,15 @@ pub async fn finish_fit(
                 ),
             );
         }
+        if let Some(ps) = &out.pool {
+            rep.stage(
+                "fit",
+                format!(
+                    "pooling: {} points share their material's NDF ({} clusters), {} kept their own, in {:.1} s",
+                    ps.pooled, ps.clusters, ps.kept_own, out.timings.pool_s
+                ),
+            );
+        }
         report.time("fit_total_after_capture_s", t.elapsed().as_secs_f64());
         report.fit = Some(report::FitReport {
             points: out.maps.len(),
@@ -192,6 +139,7 @@ pub async fn finish_fit(
             ndf_tables_mb: out.maps.tables.bytes() as f64 / 1e6,
             material_disk_mb: material::io::disk_bytes(&dir) as f64 / 1e6,
             synthesis: out.synth.clone(),
+            pooling: out.pool.clone(),
             analytic: out
                 .models
                 .iter()
@@ -292,7 +240,7 @@ pub async fn refit(
         None => serde_json::from_value(info.settings.clone()).context("capture.json lacks its quality settings")?,
     };
     let inputs = crate::fitjob::fit_inputs(&info);
-    let job = FitJob::start(inputs, q.fit.clone(), stages(&q, &Overrides::default()));
+    let job = FitJob::start(inputs, q.fit.clone(), q.stages(&Overrides::default()));
     let t = Instant::now();
     let n = tokio::task::block_in_place(|| crate::fitjob::replay(dir, &entries, &job, &stop_requested(stop)))?;
     rep.stage("fit", format!("{n} stored frames read in {:.1} s", t.elapsed().as_secs_f64()));

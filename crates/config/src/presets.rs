@@ -17,6 +17,7 @@
 //! | synthesis passes | 1 | 2 | 2 |
 //! | analytic fits | Ward iso/aniso | all eight | all eight |
 //! | analytic fit clusters (shape parameters shared) | 16 | 32 | 64 |
+//! | pooled NDF clusters (materials, `fit::pooled`) | 16 | 32 | 64 |
 //!
 //! The figures behind these choices are in `refl tradeoff` (see the README).
 
@@ -24,6 +25,7 @@ use brdf::ndf::NdfGrid;
 use brdf::params::AnalyticModel;
 use fit::FitSettings;
 use fit::analytic::AnalyticSettings;
+use fit::pooled::PoolSettings;
 use fit::synth::{SearchMode, SynthSettings};
 use serde::{Deserialize, Serialize};
 
@@ -41,6 +43,10 @@ pub struct Quality {
     pub synth: SynthSettings,
     #[serde(default)]
     pub analytic: AnalyticSettings,
+    /// Pooled estimation of each material's NDF (`fit::pooled`); absent
+    /// in captures made before it existed, which are refitted without it.
+    #[serde(default)]
+    pub pool: Option<PoolSettings>,
 }
 
 pub const PRESETS: [&str; 3] = ["fast", "balanced", "best"];
@@ -75,6 +81,7 @@ pub fn preset(name: &str) -> Option<Quality> {
                 clusters: 16,
                 seed: 7,
             },
+            pool: Some(PoolSettings { clusters: 16, seed: 1 }),
         },
         "balanced" => Quality {
             name: name.into(),
@@ -94,6 +101,7 @@ pub fn preset(name: &str) -> Option<Quality> {
                 ..SynthSettings::default()
             },
             analytic: AnalyticSettings { models: all, clusters: 32, seed: 7 },
+            pool: Some(PoolSettings { clusters: 32, seed: 1 }),
         },
         "best" => Quality {
             name: name.into(),
@@ -114,6 +122,7 @@ pub fn preset(name: &str) -> Option<Quality> {
                 ..SynthSettings::default()
             },
             analytic: AnalyticSettings { models: all, clusters: 64, seed: 7 },
+            pool: Some(PoolSettings { clusters: 64, seed: 1 }),
         },
         _ => return None,
     };
@@ -136,9 +145,22 @@ pub struct Overrides {
     /// Skip the analytic fits and the model choice.
     #[serde(default)]
     pub no_analytic: bool,
+    /// Estimate every point's NDF from its own samples alone (no pooling).
+    #[serde(default)]
+    pub no_pooling: bool,
 }
 
 impl Quality {
+    /// The fitting stages this preset asks for, minus those switched off.
+    pub fn stages(&self, o: &Overrides) -> fit::Stages {
+        fit::Stages {
+            pool: self.pool.clone().filter(|_| !o.no_pooling),
+            synth: (!o.no_synthesis).then(|| self.synth.clone()),
+            analytic: (!o.no_analytic && !self.analytic.models.is_empty()).then(|| self.analytic.clone()),
+            keep_samples: false,
+        }
+    }
+
     pub fn apply(mut self, o: &Overrides) -> Result<Self, crate::ConfigError> {
         let ensure = |ok: bool, why: String| if ok { Ok(()) } else { Err(crate::ConfigError::Override(why)) };
         if let Some(v) = o.steps {

@@ -92,7 +92,13 @@ impl FitContext {
         for s in 0..inputs.plan.steps {
             let bar_x_mm = inputs.plan.step_um(s) as f32 / 1000.0;
             for &led in &inputs.plan.leds {
-                let scale = inputs.calibration.led_scale.get(led as usize).copied().unwrap_or(1.0).max(crate::tol::MIN_LED_SCALE);
+                let scale = inputs
+                    .calibration
+                    .led_scale
+                    .get(led as usize)
+                    .copied()
+                    .unwrap_or(1.0)
+                    .max(crate::tol::MIN_LED_SCALE);
                 lights.push(Light { step: s, led, bar_x_mm, pos: g.bar.led_position(bar_x_mm, led), scale });
             }
         }

@@ -36,6 +36,7 @@ pub mod ingest;
 pub mod partial;
 pub mod pipeline;
 pub mod points;
+pub mod pooled;
 pub mod pushpull;
 pub mod samples;
 pub mod select;

@@ -69,6 +69,8 @@ pub mod point_flag {
     pub const OUT_OF_VIEW: u32 = 0x40;
     /// The table was completed by synthesis.
     pub const SYNTHESIZED: u32 = 0x80;
+    /// The table is its cluster's pooled estimate (`crate::pooled`).
+    pub const POOLED: u32 = 0x100;
 
     pub const NAMES: &[(u32, &str)] = &[
         (NO_SPECULAR, "no_specular"),
@@ -79,6 +81,7 @@ pub mod point_flag {
         (LOW_COVERAGE, "low_coverage"),
         (OUT_OF_VIEW, "out_of_view"),
         (SYNTHESIZED, "synthesized"),
+        (POOLED, "pooled"),
     ];
 }
 
@@ -189,7 +192,7 @@ fn gauss_lut() -> &'static [f32; GAUSS_LUT + 1] {
 /// 0.044 and is dropped), with Gaussian weights (from a 1,024-entry table,
 /// linearly interpolated: relative error below 1e-6)
 /// `exp(-d^2 / (2 r^2))` of the chord distance `d` to each cell centre.
-fn kernel_cells(grid: NdfGrid, centres: &[Vec3], h: Vec3, r: f32, out: &mut Vec<(u32, f32)>) {
+pub(crate) fn kernel_cells(grid: NdfGrid, centres: &[Vec3], h: Vec3, r: f32, out: &mut Vec<(u32, f32)>) {
     let (nt, np) = (grid.n_theta as usize, grid.n_phi as usize);
     let reach = 2.5 * r;
     let theta_h = brdf::frame::sin2_theta(h).sqrt().atan2(h.z);
@@ -226,7 +229,7 @@ fn kernel_cells(grid: NdfGrid, centres: &[Vec3], h: Vec3, r: f32, out: &mut Vec<
 
 /// Morphological closing of the observed set (3x3 square, periodic in phi,
 /// clamped in theta), as separable 3-tap passes.
-fn close(grid: NdfGrid, observed: &[bool]) -> Vec<bool> {
+pub(crate) fn close(grid: NdfGrid, observed: &[bool]) -> Vec<bool> {
     let (nt, np) = (grid.n_theta as usize, grid.n_phi as usize);
     let pass = |src: &[bool], dilate: bool, along_phi: bool| -> Vec<bool> {
         let mut out = vec![false; nt * np];
@@ -344,7 +347,8 @@ fn fit_eta(table: &NdfTable, k_s: f32, o: Vec3, observed: &[f32], settings: &Fit
         pairs
             .iter()
             .map(|&(r, ca, cb, w)| {
-                let m = fresnel::dielectric(ca, eta).max(MIN_FRESNEL_LOG).ln() - fresnel::dielectric(cb, eta).max(MIN_FRESNEL_LOG).ln();
+                let m = fresnel::dielectric(ca, eta).max(MIN_FRESNEL_LOG).ln()
+                    - fresnel::dielectric(cb, eta).max(MIN_FRESNEL_LOG).ln();
                 w * (r - m) * (r - m)
             })
             .sum()
@@ -500,7 +504,7 @@ fn fit_point_with(
     for x in &ps.samples {
         let h = (x.i + ps.o).normalize_or(Vec3::Z);
         s.h.push(h);
-        kernel_cells(grid, &centres, h, x.kernel_rad.max(1e-3), &mut s.cells);
+        kernel_cells(grid, &centres, h, x.kernel_rad.max(crate::tol::MIN_KERNEL_RAD), &mut s.cells);
         s.offsets.push(s.cells.len());
     }
     s.centres = centres;

@@ -39,7 +39,7 @@ pub fn gather(ctx: &FitContext, store: &SampleStore, p: usize, settings: &FitSet
     let mut ps = PointSamples { o: ctx.view[p], in_view: ctx.pixels[p].is_some(), ..PointSamples::default() };
     ps.samples.reserve(ctx.n_lights());
     for q in 0..ctx.n_lights() {
-        if settings.holdout_every.is_some_and(|k| k > 0 && q as u32 % k == 0) {
+        if settings.holds_out(&inputs.plan, q) {
             continue;
         }
         let (rho, fl) = store.get(q, p);
@@ -112,7 +112,8 @@ pub fn refit_completed(
         .par_iter()
         .map_init(Scratch::default, |scratch, &p| {
             let ps = gather(ctx, store, p, settings);
-            refit_point(&ps, settings, op, scratch, &completed.get(p))
+            let table = completed.get(p);
+            refit_point(&ps, settings, op, scratch, &table)
         })
         .collect();
     for (&p, f) in todo.iter().zip(fits) {

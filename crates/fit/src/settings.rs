@@ -31,9 +31,19 @@ pub struct FitSettings {
     /// resolution. Measured: 0.6 and 0.8 bias eta and `ks` on the Ward
     /// surface of `tests/fit_accuracy.rs`, 0.5 passes it.
     pub kernel_scale: f32,
-    /// Leave out every k-th light (`light index % k == 0`) for hold-out
-    /// validation; `None` uses every light.
+    /// Leave out every k-th gantry step (all of its lights: `step % k ==
+    /// 0`) for hold-out validation; `None` uses every light. Whole steps,
+    /// not single LEDs, so that a held-out light is never interpolated
+    /// between training lights on both sides along the bar.
     pub holdout_every: Option<u32>,
+}
+
+impl FitSettings {
+    /// Is light `q` of `plan` held out of the fit?
+    pub fn holds_out(&self, plan: &setup::CapturePlan, q: usize) -> bool {
+        let per_step = plan.leds.len().max(1);
+        self.holdout_every.is_some_and(|k| k > 0 && ((q / per_step) as u32).is_multiple_of(k))
+    }
 }
 
 impl Default for FitSettings {

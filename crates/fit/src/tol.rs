@@ -29,6 +29,11 @@ pub const MIN_FLAT: f32 = 1e-3;
 pub const MIN_DISTANCE_MM: f32 = 1e-3;
 pub const MIN_HALF_SUM: f32 = 1e-3;
 
+/// Narrowest splatting kernel (radians, 0.06 degrees): far below any
+/// table cell, it only keeps a zero spacing from a degenerate geometry
+/// finite.
+pub const MIN_KERNEL_RAD: f32 = 1e-3;
+
 /// Smallest `sin(theta)` of a ring the splatting kernel's azimuth reach is
 /// divided by (the ring at the pole has `sin = 0`).
 pub const MIN_RING_SIN: f32 = 1e-4;

@@ -88,6 +88,17 @@ pub struct Gantry {
     pub homing_speed_mm_s: f32,
 }
 
+impl Gantry {
+    /// Seconds a move of `dist_mm` takes at this gantry's speed and
+    /// acceleration (a trapezoidal profile, triangular when the move is too
+    /// short to reach full speed), settling excluded.
+    pub fn move_seconds(&self, dist_mm: f32) -> f64 {
+        let d = dist_mm.abs() as f64;
+        let (v, a) = ((self.speed_mm_s as f64).max(1e-9), (self.accel_mm_s2 as f64).max(1e-9));
+        if d >= v * v / a { d / v + v / a } else { 2.0 * (d / a).sqrt() }
+    }
+}
+
 /// LED emission: intensity falls off with the angle from the LED's axis
 /// (straight down) as `cos^m`; real LEDs are near `m = 1` (Lambertian).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]

@@ -50,6 +50,21 @@ pub struct PlannedShot {
 }
 
 impl CapturePlan {
+    /// The least time the rig can take this plan in, seconds: every frame
+    /// (dark frames and shots) at the camera's frame period `1 / fps` (or
+    /// its exposure, if longer), and every move between steps with its
+    /// settling. Homing and calibration are outside it.
+    pub fn physical_seconds(&self, g: &RigGeometry, fps: f32) -> f64 {
+        let period = 1.0 / (fps as f64).max(1e-9);
+        let frame = |us: u32| period.max(us as f64 * 1e-6);
+        let per_light: f64 = self.exposures_us.iter().map(|&us| frame(us)).sum();
+        let darks: f64 = self.exposures_us.iter().map(|&us| self.dark_frames as f64 * frame(us)).sum();
+        let step_mm = if self.steps > 1 { (self.last_mm - self.first_mm) / (self.steps - 1) as f32 } else { 0.0 };
+        let moves =
+            self.steps.saturating_sub(1) as f64 * (g.gantry.move_seconds(step_mm) + g.gantry.settle_ms as f64 / 1000.0);
+        darks + self.n_lights() as f64 * per_light + moves
+    }
+
     /// The design's full plan: 64 steps over the whole travel, all 40 LEDs,
     /// one exposure.
     pub fn full(geometry: &RigGeometry) -> Self {
@@ -141,5 +156,33 @@ mod tests {
         assert_eq!(p.light_index(63, 39), Some(64 * 40 - 1));
         p.leds.push(40);
         assert!(matches!(p.validate(&g), Err(PlanError::NoSuchLed { .. })));
+    }
+
+    /// Frames at the frame period plus trapezoidal moves with settling,
+    /// worked by hand for the default gantry (100 mm/s, 1,000 mm/s^2,
+    /// 30 ms settling: full speed after 10 mm of ramps).
+    #[test]
+    fn the_physical_time_is_frames_and_moves() {
+        let g = RigGeometry::default();
+        assert_eq!((g.gantry.speed_mm_s, g.gantry.accel_mm_s2, g.gantry.settle_ms), (100.0, 1000.0, 30.0));
+        let mut p = CapturePlan {
+            steps: 2,
+            first_mm: -120.0,
+            last_mm: 120.0,
+            leds: vec![0, 1],
+            exposures_us: vec![20_000],
+            gain: 1.0,
+            dark_frames: 3,
+        };
+        // 3 darks + 4 shots at 0.1 s; one 240 mm move: 2.4 s + 0.1 s of
+        // ramps, then 0.03 s settling.
+        assert!((p.physical_seconds(&g, 10.0) - (0.7 + 2.5 + 0.03)).abs() < 1e-9);
+        // A 4 mm move never reaches full speed: 2 sqrt(4 / 1000) s.
+        p.first_mm = 0.0;
+        p.last_mm = 4.0;
+        assert!((p.physical_seconds(&g, 10.0) - (0.7 + 2.0 * 0.004f64.sqrt() + 0.03)).abs() < 1e-9);
+        // An exposure longer than the frame period sets the pace.
+        p.exposures_us = vec![250_000];
+        assert!((p.physical_seconds(&g, 10.0) - (7.0 * 0.25 + 2.0 * 0.004f64.sqrt() + 0.03)).abs() < 1e-9);
     }
 }

@@ -39,10 +39,8 @@ impl CalibrationStore {
         files.sort();
         let Some(p) = files.pop() else { return Ok(None) };
         let text = std::fs::read_to_string(&p).map_err(io("cannot read", &p))?;
-        let c: Calibration = serde_json::from_str(&text).map_err(|e| StoreError::BadCalibration {
-            path: p.display().to_string(),
-            reason: e.to_string(),
-        })?;
+        let c: Calibration = serde_json::from_str(&text)
+            .map_err(|e| StoreError::BadCalibration { path: p.display().to_string(), reason: e.to_string() })?;
         Ok(Some((p, c)))
     }
 

@@ -5,8 +5,8 @@ use std::process::ExitCode;
 
 use clap::Parser;
 use cli::capture::{self, CaptureRequest};
-use config::Overrides;
 use cli::progress::Reporter;
+use config::Overrides;
 use config::RigFile;
 
 /// Scan a flat material sample and fit its spatially varying, anisotropic
@@ -72,6 +72,10 @@ struct Args {
     /// Skip the analytic fits and the per-point model choice.
     #[arg(long)]
     no_analytic: bool,
+    /// Fit every point's NDF from its own samples alone (no pooling of a
+    /// material's points).
+    #[arg(long)]
+    no_pooling: bool,
     /// Capture only; do not fit.
     #[arg(long)]
     no_fit: bool,
@@ -145,6 +149,7 @@ fn main() -> ExitCode {
                 clusters: args.clusters,
                 no_synthesis: args.no_synthesis,
                 no_analytic: args.no_analytic,
+                no_pooling: args.no_pooling,
             },
             rig_file: args.rig.clone(),
             sim_material: args.sim_material.clone(),

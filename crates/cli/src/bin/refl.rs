@@ -95,13 +95,15 @@ enum Cmd {
     },
     /// The speed/accuracy trade-off: simulated captures of SAMPLE at several
     /// settings, each fitted and scored; writes DIR/tradeoff.json and
-    /// DIR/tradeoff.png (time against error, Pareto front marked).
+    /// DIR/tradeoff.png (the rig's capture time plus the fit's, against
+    /// error; Pareto front marked).
     Tradeoff {
         sample: String,
         #[arg(long)]
         out: std::path::PathBuf,
         /// Comma-separated settings (fast, fast-16-steps, fast-all-leds,
-        /// balanced-no-synthesis, balanced, balanced-ndf-24, best).
+        /// balanced-no-synthesis, balanced-per-point, balanced,
+        /// balanced-ndf-24, best).
         #[arg(long, default_value = assess::tradeoff::DEFAULT_SETTINGS)]
         settings: String,
         /// Only redraw DIR/tradeoff.png from DIR/tradeoff.json.
@@ -166,6 +168,19 @@ struct ImportArgs {
 
 #[derive(Debug, Subcommand)]
 enum BenchCmd {
+    /// Where the fitter's error comes from: a synthetic capture of SAMPLE
+    /// at a preset's plan fitted as captured, without noise, and with each
+    /// resolution knob loosened; NDF and BRDF errors against the truth per
+    /// row.
+    Budget {
+        #[arg(long, default_value = "satin")]
+        sample: String,
+        #[arg(long, default_value = "fast")]
+        quality: String,
+        /// Also write the rows as JSON to this file.
+        #[arg(long)]
+        json: Option<std::path::PathBuf>,
+    },
     /// The fitter's stages (points/s) and peak memory on a synthetic
     /// capture. Default: the balanced preset's size (96 x 96 points, 64
     /// steps x 40 LEDs). The talk's scale: --points 800 (2,560 lights).
@@ -290,9 +305,9 @@ fn main() -> ExitCode {
             Cmd::Fit { dir, quality, partial } => {
                 let mut rep = cli::progress::Reporter::auto(false);
                 let q = match quality {
-                    Some(n) => Some(
-                        config::preset(&n).ok_or_else(|| cli::usage(anyhow::anyhow!("unknown quality '{n}'")))?,
-                    ),
+                    Some(n) => {
+                        Some(config::preset(&n).ok_or_else(|| cli::usage(anyhow::anyhow!("unknown quality '{n}'")))?)
+                    }
                     None => None,
                 };
                 let m = cli::output::refit(&dir, q, partial, &mut rep, &stop).await?;
@@ -402,6 +417,16 @@ fn main() -> ExitCode {
                     tokio::task::block_in_place(|| assess::bench::camera(&sample, px, frames)).map(|_| ())
                 }
                 BenchCmd::Protocol { n } => assess::bench::protocol(n).await,
+                BenchCmd::Budget { sample, quality, json } => {
+                    let q = config::preset(&quality)
+                        .ok_or_else(|| cli::usage(anyhow::anyhow!("unknown quality '{quality}'")))?;
+                    let rows = tokio::task::block_in_place(|| assess::budget::run(&sample, &q))?;
+                    if let Some(p) = json {
+                        std::fs::write(&p, serde_json::to_vec_pretty(&rows)?)
+                            .with_context(|| format!("cannot write {}", p.display()))?;
+                    }
+                    Ok(())
+                }
                 BenchCmd::SynthesisScale { sample, points, clusters, rotations, cone_deg } => {
                     tokio::task::block_in_place(|| {
                         assess::bench::synthesis_scale(&sample, points, clusters, rotations, cone_deg)

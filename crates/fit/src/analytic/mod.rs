@@ -38,8 +38,6 @@ use crate::partial::{LUMA, Sample, point_flag};
 use crate::points::{PointMaps, gather};
 use crate::samples::SampleStore;
 use crate::settings::FitSettings;
-use crate::synth::cluster::kmeans;
-use crate::synth::descriptor::Core;
 use shape::Moments;
 
 /// Member points whose samples enter a cluster's shape fit.
@@ -123,18 +121,8 @@ pub fn evidence(
     let mut cluster = vec![u32::MAX; n];
     let mut clusters = 0;
     if !eligible.is_empty() {
-        let core = Core::find(&maps.tables, &eligible, 32);
-        let dlen = core.len();
-        let desc: Vec<f32> = eligible
-            .par_iter()
-            .flat_map_iter(|&p| {
-                let mut d = vec![0.0; dlen];
-                core.describe(&maps.tables.get(p), 0.0, &mut d);
-                d
-            })
-            .collect();
         clusters = (settings.clusters as usize).clamp(1, eligible.len());
-        let assign = kmeans(&desc, dlen, clusters, settings.seed);
+        let assign = crate::synth::cluster::by_table(&maps.tables, &eligible, 32, clusters, settings.seed);
         for (k, &p) in eligible.iter().enumerate() {
             cluster[p] = assign[k];
         }

@@ -5,6 +5,7 @@
 //! older dependencies, which is why it is written here. Above a few hundred
 //! clusters the assignment step uses a k-d tree (`kiddo`) instead of the scan.
 
+use brdf::ndf::TableSet;
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
 use rayon::prelude::*;
@@ -15,6 +16,16 @@ const MAX_ITERATIONS: usize = 20;
 
 fn d2(a: &[f32], b: &[f32]) -> f32 {
     a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum()
+}
+
+/// Cluster `points` by their tables as they stand (unrotated): k-means
+/// with `k` clusters on the synthesis's descriptors over the cells most of
+/// them observe (`descriptor` cells). Returns each point's cluster, in the
+/// order of `points`. Shared by the analytic fits (shape parameters per
+/// cluster) and pooled estimation (one NDF per cluster).
+pub fn by_table(tables: &TableSet, points: &[usize], descriptor: usize, k: usize, seed: u64) -> Vec<u32> {
+    let core = super::descriptor::Core::find(tables, points, descriptor);
+    kmeans(&core.describe_all(tables, points), core.len(), k, seed)
 }
 
 /// Cluster `n` vectors of length `dim` (row-major in `data`) into `k`

@@ -17,6 +17,7 @@
 //! talk's "intersection approximation").
 
 use brdf::ndf::{NdfGrid, NdfTable, TableSet};
+use rayon::prelude::*;
 
 /// Rings of the coarse mask.
 pub const COARSE_RINGS: usize = 8;
@@ -63,6 +64,19 @@ impl Core {
 
     /// Descriptor of `t` rotated by `shift` sectors (fractional shifts
     /// interpolate linearly), unit length (zero if the core is empty).
+    /// The unrotated descriptors of `points`' tables, row-major.
+    pub fn describe_all(&self, tables: &TableSet, points: &[usize]) -> Vec<f32> {
+        let dlen = self.len();
+        points
+            .par_iter()
+            .flat_map_iter(|&p| {
+                let mut d = vec![0.0f32; dlen];
+                self.describe(&tables.get(p), 0.0, &mut d);
+                d
+            })
+            .collect()
+    }
+
     pub fn describe(&self, t: &NdfTable, shift: f32, out: &mut [f32]) {
         let (np, g) = (self.grid.n_phi as usize, &self.grid);
         out.iter_mut().for_each(|v| *v = 0.0);

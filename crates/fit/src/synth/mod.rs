@@ -174,14 +174,7 @@ pub fn synthesize(input: &TableSet, eligible: &[bool], s: &SynthSettings) -> Syn
         let t0 = Instant::now();
         let core = Core::find(&tables, &points, s.descriptor as usize);
         let dlen = core.len();
-        let descriptors: Vec<f32> = points
-            .par_iter()
-            .flat_map_iter(|&p| {
-                let mut d = vec![0.0f32; dlen];
-                core.describe(&tables.get(p), 0.0, &mut d);
-                d
-            })
-            .collect();
+        let descriptors = core.describe_all(&tables, &points);
         let candidates: Vec<NdfTable> = match s.mode {
             SearchMode::BruteForce => points.iter().map(|&p| tables.get(p)).collect(),
             _ => {

@@ -201,7 +201,11 @@ pub fn best_rotation(
     for s in 0..m {
         let get = |k: usize| scratch.out[k][s] * norm;
         let (a, b, cc, n, g) = (get(0), get(1), get(2), get(3), get(4));
-        if q.observed <= 0.0 || n < min_overlap * q.observed || g <= 0.01 * q.missing.max(MIN_MISSING_MASS as f32) || b <= 0.0 || cc <= 0.0
+        if q.observed <= 0.0
+            || n < min_overlap * q.observed
+            || g <= 0.01 * q.missing.max(MIN_MISSING_MASS as f32)
+            || b <= 0.0
+            || cc <= 0.0
         {
             continue;
         }
@@ -279,7 +283,11 @@ pub fn score_at(
         observed += w * ro as f64;
         missing += w * rm as f64;
     }
-    if observed <= 0.0 || n < min_overlap as f64 * observed || gain <= 0.01 * missing.max(MIN_MISSING_MASS) || b <= 0.0 || c <= 0.0
+    if observed <= 0.0
+        || n < min_overlap as f64 * observed
+        || gain <= 0.01 * missing.max(MIN_MISSING_MASS)
+        || b <= 0.0
+        || c <= 0.0
     {
         return None;
     }
