@@ -102,7 +102,8 @@ pub fn material_from(out: &fit::FitResult, info: &store::CaptureInfo, q: &config
             "simulated": info.simulated,
             "fit_seconds": {
                 "partial": out.timings.ingest_s + out.timings.points_s,
-                "synthesized": out.timings.ingest_s + out.timings.points_s + out.timings.synthesis_s,
+                "synthesized": out.timings.ingest_s + out.timings.points_s + out.timings.synthesis_s
+                    + out.timings.pool_s,
             },
         }),
     }

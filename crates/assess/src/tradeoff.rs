@@ -141,7 +141,11 @@ pub fn run(sample: &str, out: &Path, settings: &str, rep: &mut dyn Progress) -> 
                     .map(|(k, v)| (k.clone(), v.render_rel_rmse))
                     .collect::<std::collections::BTreeMap<_, _>>(),
             )?,
-            holdout_rel_rmse: ev.holdout.get("partial").and_then(|h| h.frame_rel_rmse),
+            holdout_rel_rmse: ev
+                .holdout
+                .get("synthesized")
+                .or_else(|| ev.holdout.get("partial"))
+                .and_then(|h| h.frame_rel_rmse),
             pareto: false,
         });
     }

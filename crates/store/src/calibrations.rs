@@ -7,6 +7,12 @@ use setup::Calibration;
 
 use crate::StoreError;
 
+/// The error of an IO step on `path`, for `map_err`.
+fn io(what: &'static str, path: &Path) -> impl FnOnce(std::io::Error) -> StoreError {
+    let path = path.display().to_string();
+    move |source| StoreError::Io { what, path, source }
+}
+
 /// The calibrations of one rig, newest last by id.
 #[derive(Clone, Debug)]
 pub struct CalibrationStore {
@@ -25,10 +31,6 @@ impl CalibrationStore {
 
     /// The newest calibration, with its file.
     pub fn newest(&self) -> Result<Option<(PathBuf, Calibration)>, StoreError> {
-        let io = |what, path: &Path| {
-            let path = path.display().to_string();
-            move |source| StoreError::Io { what, path, source }
-        };
         let rd = match std::fs::read_dir(&self.dir) {
             Ok(r) => r,
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
@@ -46,10 +48,6 @@ impl CalibrationStore {
 
     /// Store `c` (written to a temporary file, then renamed into place).
     pub fn save(&self, c: &Calibration) -> Result<PathBuf, StoreError> {
-        let io = |what, path: &Path| {
-            let path = path.display().to_string();
-            move |source| StoreError::Io { what, path, source }
-        };
         std::fs::create_dir_all(&self.dir).map_err(io("cannot create", &self.dir))?;
         let p = self.dir.join(format!("{}.json", c.id));
         let tmp = self.dir.join(format!(".{}.tmp", c.id));
