@@ -72,10 +72,7 @@ pub struct MotionProfile {
 impl MotionProfile {
     /// Duration of a trapezoidal (or triangular) move over `dist_um`.
     pub fn duration_s(&self, dist_um: f64) -> f64 {
-        let d = dist_um.abs();
-        let (v, a) = (self.speed_um_s.max(1e-9), self.accel_um_s2.max(1e-9));
-        let d_ramp = v * v / a; // accelerate and decelerate to/from full speed
-        if d >= d_ramp { d / v + v / a } else { 2.0 * (d / a).sqrt() }
+        setup::trapezoid_seconds(dist_um, self.speed_um_s, self.accel_um_s2)
     }
 
     /// Distance covered `t_s` into a move of `dist_um` (clamped to the end).

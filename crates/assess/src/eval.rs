@@ -28,7 +28,6 @@ use anyhow::{Context, Result, anyhow};
 use brdf::Brdf;
 use brdf::ndf::NdfTable;
 use config::Quality;
-use glam::Vec3;
 use material::{Material, MaterialView, ModelChoice, NdfKind, SvBrdf};
 use render::{Image, Light, Scene};
 use serde::Serialize;
@@ -294,15 +293,17 @@ fn holdout(dir: &Path, rep: &mut dyn Progress) -> Result<BTreeMap<String, Holdou
         let view = MaterialView::new(m.clone(), choice).ok_or_else(|| anyhow!("material lacks model {name}"))?;
         predictors.push((name, Arc::new(view)));
     }
+    // The truth, for a simulated capture, predicts last: its error is the floor.
     let truth = ground_truth(&info)?;
+    let n_models = predictors.len();
+    predictors.extend(truth.map(|t| ("truth".to_string(), t)));
     let held: Vec<usize> = (0..ctx.n_lights()).filter(|&q| fitted.settings.holds_out(&ctx.inputs.plan, q)).collect();
-    // (sum (pred - rho)^2, sum rho^2) per predictor, the truth last.
-    let mut sums = vec![(0.0f64, 0.0f64); predictors.len() + 1];
+    // (sum (pred - rho)^2, sum rho^2) per predictor.
+    let mut sums = vec![(0.0f64, 0.0f64); predictors.len()];
     for p in 0..ctx.n_points() {
         let x = ctx.positions[p];
         let pos = glam::Vec2::new(x.x, x.y);
-        let mut at: Vec<material::PointMaterial> = predictors.iter().map(|(_, v)| v.at(pos)).collect();
-        at.push(truth.as_ref().map_or(material::PointMaterial::Diffuse { kd: Vec3::ZERO }, |t| t.at(pos)));
+        let at: Vec<material::PointMaterial> = predictors.iter().map(|(_, v)| v.at(pos)).collect();
         for &q in &held {
             let (rho, fl) = store.get(q, p);
             if fl & fit::samples::flag::UNUSABLE != 0 {
@@ -319,8 +320,8 @@ fn holdout(dir: &Path, rep: &mut dyn Progress) -> Result<BTreeMap<String, Holdou
         }
     }
     let rel = |s: (f64, f64)| (s.1 > 0.0).then(|| (s.0 / s.1).sqrt());
-    let floor = if truth.is_some() { rel(sums[predictors.len()]) } else { None };
-    Ok(predictors
+    let floor = sums.get(n_models).and_then(|&s| rel(s));
+    Ok(predictors[..n_models]
         .iter()
         .zip(&sums)
         .map(|((name, _), &s)| (name.clone(), Holdout { frame_rel_rmse: rel(s), noise_floor: floor }))

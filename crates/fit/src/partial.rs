@@ -171,7 +171,8 @@ const MIN_PAIRS: usize = 6;
 /// At most this many (strongest) pairs enter the Fresnel fit.
 const MAX_PAIRS: usize = 128;
 
-fn lum(c: [f32; 3]) -> f32 {
+/// Luminance of a colour (the scalar specular's weights, [`LUMA`]).
+pub(crate) fn lum(c: [f32; 3]) -> f32 {
     LUMA[0] * c[0] + LUMA[1] * c[1] + LUMA[2] * c[2]
 }
 
@@ -255,9 +256,9 @@ pub(crate) fn close(grid: NdfGrid, observed: &[bool]) -> Vec<bool> {
     c
 }
 
-struct Splatted {
-    table: NdfTable,
-    k_s: f32,
+pub(crate) struct Splatted {
+    pub(crate) table: NdfTable,
+    pub(crate) k_s: f32,
 }
 
 /// The parts of splatting that do not change between iterations: kernel
@@ -402,7 +403,7 @@ pub fn refit_point(
 /// The observed table (normalised over its region, with scale `k_s`)
 /// joined with `prior`'s cells outside that region, scaled so that the two
 /// agree in mass over the observed region; `None` without overlap.
-fn join(observed: &Splatted, prior: &NdfTable) -> Option<Splatted> {
+pub(crate) fn join(observed: &Splatted, prior: &NdfTable) -> Option<Splatted> {
     let grid = prior.grid();
     let np = grid.n_phi as usize;
     let cov = observed.table.coverage();

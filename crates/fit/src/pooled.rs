@@ -47,7 +47,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::context::FitContext;
-use crate::partial::{LUMA, PointSamples, close, kernel_cells, point_flag};
+use crate::partial::{PointSamples, Splatted, close, join, kernel_cells, lum, point_flag};
 use crate::points::{PointMaps, gather};
 use crate::pushpull::push_pull;
 use crate::samples::SampleStore;
@@ -84,10 +84,6 @@ const ROUNDS: usize = 2;
 const DESCRIPTOR: usize = 32;
 /// Smallest kernel as a fraction of the cell's angular size at `h`.
 const MIN_KERNEL_CELLS: f32 = 0.5;
-
-fn lum(c: [f32; 3]) -> f32 {
-    LUMA[0] * c[0] + LUMA[1] * c[1] + LUMA[2] * c[2]
-}
 
 /// One member's samples and the per-point quantities that turn them into
 /// NDF values.
@@ -132,16 +128,14 @@ pub fn pool(
         .map(|m| pool_cluster(ctx, store, maps_ref, settings, op, m, observed))
         .collect();
     let mut stats = PoolStats { clusters: results.len(), ..PoolStats::default() };
-    let mut pooled = vec![false; maps.len()];
     for (p, table, k_s) in results.into_iter().flatten() {
         let colour_lum = lum(maps.ks[p]);
         let colour = maps.ks[p].map(|c| if colour_lum > 0.0 { c / colour_lum } else { 1.0 });
         maps.ks[p] = colour.map(|c| c * k_s);
         maps.tables.set(p, &table);
         maps.flags[p] |= point_flag::POOLED;
-        pooled[p] = true;
+        stats.pooled += 1;
     }
-    stats.pooled = pooled.iter().filter(|&&x| x).count();
     stats.kept_own = eligible.len() - stats.pooled;
     stats
 }
@@ -247,7 +241,10 @@ fn pool_cluster(
         .zip(&own_masking)
         .filter_map(|(mb, own_masking)| {
             let own = maps.tables.get(mb.p);
-            let joined = join(&table, &own);
+            // The pooled table where the pool observed, the point's own
+            // completed table beyond, agreeing in mass over the pool's region.
+            let pooled = Splatted { table: table.clone(), k_s: 1.0 };
+            let joined = join(&pooled, &own).map_or_else(|| table.clone(), |j| j.table);
             let joined_masking = op.projected_areas(&joined);
             let pooled_fit = Fit::of(mb, &joined, &joined_masking);
             let k_joined = pooled_fit.scale()?;
@@ -258,34 +255,6 @@ fn pool_cluster(
             (chi2_pooled + 2.0 <= chi2_own + 2.0 * k_own).then_some((mb.p, joined, k_joined))
         })
         .collect()
-}
-
-/// The pooled table on its observed cells, the point's own (completed)
-/// table outside them, scaled so that the two agree in mass over the
-/// pooled region; normalised.
-fn join(pooled: &NdfTable, own: &NdfTable) -> NdfTable {
-    let grid = pooled.grid();
-    let np = grid.n_phi as usize;
-    let cov = pooled.coverage();
-    let (mut pooled_mass, mut own_mass) = (0.0f32, 0.0f32);
-    for c in cov.iter_set() {
-        let w = grid.cos_measure(c / np);
-        pooled_mass += pooled.values()[c] * w;
-        own_mass += own.values()[c] * w;
-    }
-    let a = if own_mass > 0.0 { pooled_mass / own_mass } else { 0.0 };
-    let mut t = NdfTable::zeros(grid);
-    for c in 0..grid.len() {
-        if cov.get(c) {
-            t.values_mut()[c] = pooled.values()[c];
-            t.coverage_mut().set(c, true);
-        } else if own.coverage().get(c) && a.is_finite() {
-            t.values_mut()[c] = (a * own.values()[c]).max(0.0);
-            t.coverage_mut().set(c, true);
-        }
-    }
-    t.normalize();
-    t
 }
 
 impl Member {

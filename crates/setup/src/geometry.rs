@@ -88,14 +88,22 @@ pub struct Gantry {
     pub homing_speed_mm_s: f32,
 }
 
+/// Seconds a move over `dist` takes at top speed `speed` and acceleration
+/// `accel` (any one length unit): a trapezoidal profile, triangular when the
+/// move is too short to reach full speed. The one motion model of the rig:
+/// the gantry's plan time, the emulator's physics and the driver's
+/// prediction of `MoveDone` all use it.
+pub fn trapezoid_seconds(dist: f64, speed: f64, accel: f64) -> f64 {
+    let d = dist.abs();
+    let (v, a) = (speed.max(1e-9), accel.max(1e-9));
+    if d >= v * v / a { d / v + v / a } else { 2.0 * (d / a).sqrt() }
+}
+
 impl Gantry {
     /// Seconds a move of `dist_mm` takes at this gantry's speed and
-    /// acceleration (a trapezoidal profile, triangular when the move is too
-    /// short to reach full speed), settling excluded.
+    /// acceleration, settling excluded.
     pub fn move_seconds(&self, dist_mm: f32) -> f64 {
-        let d = dist_mm.abs() as f64;
-        let (v, a) = ((self.speed_mm_s as f64).max(1e-9), (self.accel_mm_s2 as f64).max(1e-9));
-        if d >= v * v / a { d / v + v / a } else { 2.0 * (d / a).sqrt() }
+        trapezoid_seconds(dist_mm as f64, self.speed_mm_s as f64, self.accel_mm_s2 as f64)
     }
 }
 

@@ -14,6 +14,6 @@ pub mod valid;
 
 pub use calibration::Calibration;
 pub use camera::CameraModel;
-pub use geometry::{Gantry, LedBar, LedEmission, PointGrid, RigGeometry, SampleArea};
+pub use geometry::{Gantry, LedBar, LedEmission, PointGrid, RigGeometry, SampleArea, trapezoid_seconds};
 pub use plan::{CapturePlan, PlanError, PlannedShot};
 pub use valid::Invalid;

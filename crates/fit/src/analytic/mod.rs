@@ -34,7 +34,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::context::FitContext;
-use crate::partial::{LUMA, Sample, point_flag};
+use crate::partial::{Sample, lum, point_flag};
 use crate::points::{PointMaps, gather};
 use crate::samples::SampleStore;
 use crate::settings::FitSettings;
@@ -87,10 +87,6 @@ pub struct Evidence {
     pub tabulated: Vec<f32>,
     samples: Vec<Vec<Sample>>,
     view: Vec<Vec3>,
-}
-
-fn lum(c: [f32; 3]) -> f32 {
-    LUMA[0] * c[0] + LUMA[1] * c[1] + LUMA[2] * c[2]
 }
 
 fn stride_sample(all: &[Sample], n: usize) -> Vec<Sample> {

@@ -323,8 +323,7 @@ impl<C: Connector> Rig<C> {
             Some(f) => (to - f).abs() as f64,
             None => (self.info.map_or(240_000, |i| i.travel_max_um - i.travel_min_um)) as f64,
         };
-        let (v, a) = (s.speed_um_s.max(1.0), s.accel_um_s2.max(1.0));
-        let secs = if dist >= v * v / a { dist / v + v / a } else { 2.0 * (dist / a).sqrt() };
+        let secs = setup::trapezoid_seconds(dist, s.speed_um_s.max(1.0), s.accel_um_s2.max(1.0));
         Duration::from_secs_f64(secs + s.settle_ms / 1000.0) + s.move_done_slack
     }
 
