@@ -50,10 +50,14 @@ best = min(analytic, key=analytic.get) if analytic else None
 ho = ev.get("holdout", {})
 hs = ho.get("synthesized") or ho.get("partial") or {}
 ha = ho.get("auto") or {}
+# auto against the best single model of any kind (issue 16: at most 1.02).
+single = {k: v["render_rel_rmse"] for k, v in m.items() if k != "auto" and v.get("render_rel_rmse") is not None}
+auto_rel = m.get("auto", {}).get("render_rel_rmse")
+auto_rel = auto_rel / min(single.values()) if auto_rel is not None and single and min(single.values()) > 0 else None
 print(f"{name:24} {f(syn.get('ndf_rel_l2_observed')):>8} {f(syn.get('ndf_shape_observed')):>8} "
       f"{f(syn.get('ndf_rel_l2_full')):>8} {r('synthesized'):>8} {r('auto'):>8} {(best or '-'):>18} "
       f"{f(analytic.get(best)) if best else '-':>8} {f(hs.get('frame_rel_rmse')):>8} {f(ha.get('frame_rel_rmse')):>8} "
-      f"{f(hs.get('noise_floor')):>8}")
+      f"{f(hs.get('noise_floor')):>8} {f(auto_rel):>9}")
 EOF
 }
 
@@ -66,7 +70,7 @@ scan() { # name [capture args...]
   row "$name" "$dir"
 }
 
-printf '%-24s %8s %8s %8s %8s %8s %18s %8s %8s %8s %8s\n' sample ndf_obs shape ndf_full synth auto best_analytic best ho_synth ho_auto floor
+printf '%-24s %8s %8s %8s %8s %8s %18s %8s %8s %8s %8s %9s\n' sample ndf_obs shape ndf_full synth auto best_analytic best ho_synth ho_auto floor auto/best
 for s in $("$bin/capture" --list-samples | awk '{print $1}'); do
   scan "$s" --sample "$s"
 done

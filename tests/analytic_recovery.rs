@@ -69,7 +69,7 @@ fn recover(model: AnalyticModel, truth: &[f32]) -> Vec<(Vec<f32>, Vec3)> {
     };
     let settings = FitSettings::default();
     let f = run(&s, settings.clone());
-    let a = AnalyticSettings { models: vec![model], clusters: 2, seed: 3 };
+    let a = AnalyticSettings { models: vec![model], clusters: 2, seed: 3, ..AnalyticSettings::default() };
     let ev = evidence(&f.ctx, &f.store, &f.maps, &settings, &a);
     let fit = fit_model(model, &f.maps, &ev);
     let n = model.n_params();
@@ -164,16 +164,28 @@ fn ashikhmin_shirley() {
     }
 }
 
-#[test]
-fn ggx_anisotropic() {
-    let t = [0.2, 0.2, 0.3, 0.05, 0.05, 0.05, 0.3, 0.1, -0.5, 1.5];
-    for (p, _) in recover(AnalyticModel::GgxAniso, &t) {
+/// An anisotropic microfacet lobe with the relative Fresnel term: `ks` is
+/// 0.04, the normal-incidence reflectance of its index 1.5 (the most such
+/// a surface reflects; the fitter's bound).
+fn microfacet_anisotropic(model: AnalyticModel, angle_rad: f32) {
+    let t = [0.2, 0.2, 0.3, 0.04, 0.04, 0.04, 0.3, 0.1, angle_rad, 1.5];
+    for (p, _) in recover(model, &t) {
         amplitudes(&p, &t);
         within("alpha_x", p[6], t[6], 0.10);
         within("alpha_y", p[7], t[7], 0.10);
         angle_within(p[8], t[8], 3.0);
         assert!((p[9] - t[9]).abs() <= 0.15, "eta {} vs {}", p[9], t[9]);
     }
+}
+
+#[test]
+fn ggx_anisotropic() {
+    microfacet_anisotropic(AnalyticModel::GgxAniso, -0.5);
+}
+
+#[test]
+fn beckmann_anisotropic() {
+    microfacet_anisotropic(AnalyticModel::BeckmannAniso, 0.7);
 }
 
 #[test]

@@ -318,11 +318,10 @@ fn render_err(ev: &serde_json::Value, model: &str) -> f64 {
 
 /// The fast preset (32 steps, 48 x 48 points): on `satin`, whose two lobes
 /// no single Ward lobe can describe, the synthesized microfacet model is
-/// clearly better than anisotropic Ward (measured 0.217 against 0.287); on
-/// the single-lobe `ward` surface both are small (measured 0.215 and
-/// 0.219; what remains is mostly the far-side grazing condition, where the
-/// truth's Fresnel and masking are extrapolated) and anisotropic Ward is
-/// far better than isotropic (0.353).
+/// clearly better than anisotropic Ward (measured 0.175 against 0.284); on
+/// the single-lobe `ward` surface both are small (measured 0.156 and
+/// 0.207) and anisotropic Ward is far better than isotropic (0.348); its
+/// own class, anisotropic Beckmann, measured 0.015.
 #[test]
 fn eval_ranks_the_models_as_the_physics_says() {
     let lab = Lab::new();
@@ -361,6 +360,28 @@ fn eval_ranks_the_models_as_the_physics_says() {
     let floor = ward["holdout"]["auto"]["noise_floor"].as_f64().expect("a simulated capture has a noise floor");
     let h = ward["holdout"]["auto"]["frame_rel_rmse"].as_f64().unwrap();
     assert!(floor > 0.0 && h <= 2f64.sqrt() * floor, "hold-out {h:.4} against the noise floor {floor:.4}");
+    // The ward surface is an anisotropic Beckmann microfacet surface, inside
+    // a class the choice may take: chosen on held-out steps, `auto` renders
+    // within 2% of the best single model (issue 16's requirement).
+    let best = |ev: &serde_json::Value, keep: &dyn Fn(&str) -> bool| {
+        ev["models"]
+            .as_object()
+            .unwrap()
+            .iter()
+            .filter(|(m, _)| keep(m))
+            .filter_map(|(m, v)| v["render_rel_rmse"].as_f64().map(|e| (m.clone(), e)))
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+            .unwrap()
+    };
+    let (m, e) = best(&ward, &|m| m != "auto");
+    let auto = render_err(&ward, "auto");
+    assert!(auto <= 1.02 * e, "ward: auto {auto:.4} against {m} {e:.4}");
+    // Satin's weave of two lobes lies outside every analytic class: where
+    // the held-out steps say so the choice takes the table, and `auto` must
+    // render better than any analytic model alone.
+    let (m, e) = best(&satin, &|m| !["auto", "synthesized", "partial"].contains(&m));
+    let auto = render_err(&satin, "auto");
+    assert!(auto < e, "satin: auto {auto:.4} against {m} {e:.4}");
 }
 
 #[test]

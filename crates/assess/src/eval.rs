@@ -12,7 +12,8 @@
 //!   sum truth^2)` over all pixels and channels of all conditions.
 //! - **NDF errors** against the true NDF, the same relative L2 in the
 //!   table's cosine measure, over the observed cells and the whole
-//!   hemisphere, pooled over up to 1,024 points spread over the sample.
+//!   hemisphere, pooled over up to 1,024 points spread over the sample
+//!   (those the camera measured: the others hold no fit).
 //! - **Hold-out**: for any capture, real or simulated, the material is
 //!   refitted without every 8th light and predicts those lights' samples;
 //!   `frame_rel_rmse` is the same relative error in reflectance over every
@@ -170,6 +171,7 @@ fn unobserved_fraction(m: &Material, c: &Condition, sample: &SampleArea) -> f64 
     let Some(partial) = m.partial.as_ref().map(|pf| &pf.tables).or(m.ndf.as_ref()) else { return 0.0 };
     let scene = scene_for(c, 48);
     let Light::Point { position_mm, .. } = scene.lights[0] else { return 0.0 };
+    let stand_in = m.stand_ins();
     let (mut out, mut n) = (0usize, 0usize);
     for y in 0..48 {
         for x in 0..48 {
@@ -179,7 +181,7 @@ fn unobserved_fraction(m: &Material, c: &Condition, sample: &SampleArea) -> f64 
             if !sample.contains(q) {
                 continue;
             }
-            let Some(pi) = m.point_at(q) else { continue };
+            let Some(pi) = m.point_at(q).map(|pi| stand_in[pi] as usize) else { continue };
             let p = q.extend(0.0);
             let (o, i) = (scene.camera.view_dir(p), (position_mm - p).normalize());
             if o.z <= 0.0 || i.z <= 0.0 {
@@ -225,6 +227,7 @@ fn ndf_errors(m: &Material, which: ModelChoice, truth: &dyn SvBrdf, max_points: 
     // over the hemisphere sum (a-b)^2, sum b^2.
     let sums: Vec<[f64; 7]> = (0..n)
         .step_by(stride)
+        .filter(|&p| m.is_measured(p))
         .filter_map(|p| {
             let pos = m.grid.position_of(&m.sample, p);
             let tp = truth.at(pos);

@@ -8,6 +8,7 @@
 //! `KHR_materials_ior`:
 //!
 //! - base colour = the diffuse albedo `kd` (sRGB texture), metallic 0;
+//!   a point the camera did not measure shows its nearest measured one;
 //! - glTF's anisotropic GGX has `alpha_b = r^2` and
 //!   `alpha_t = mix(r^2, 1, strength^2)` along the anisotropy direction
 //!   (the extension's specification), so `r = sqrt(min alpha)`,
@@ -63,8 +64,11 @@ pub fn export(m: &Material, out: &Path) -> Result<Vec<PathBuf>> {
     let f0 = ((ior - 1.0) / (ior + 1.0)).powi(2);
     let ks_max = (0..n).flat_map(|p| mm.params[p * np + 3..p * np + 6].to_vec()).fold(0.0f32, f32::max);
     let spec_factor = (ks_max / f0).max(1e-6);
+    // Points the camera did not measure show their nearest measured one.
+    let stand_in = m.stand_ins();
     for p in 0..n {
-        let q = &mm.params[p * np..(p + 1) * np];
+        let s = stand_in[p] as usize;
+        let q = &mm.params[s * np..(s + 1) * np];
         for c in 0..3 {
             base[p * 3 + c] = srgb(q[c]);
             spec[p * 3 + c] = srgb(q[3 + c] / f0 / spec_factor);

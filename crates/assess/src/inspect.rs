@@ -1,6 +1,7 @@
 //! `refl inspect`: what a stored material holds, in numbers: its grid,
 //! NDF kind, point flags, model choice and the spread of every fitted
-//! parameter (5th, 50th and 95th percentiles over the points).
+//! parameter (5th, 50th and 95th percentiles over the points the camera
+//! measured; the others hold no fit).
 
 use std::path::Path;
 
@@ -31,8 +32,10 @@ pub struct Inspection {
     pub ndf: Option<String>,
     /// Points carrying each fit flag.
     pub flags: Vec<(String, usize)>,
-    /// Points per model class, when the material has a choice map.
+    /// Measured points per model class, when the material has a choice map.
     pub choice: Vec<(String, usize)>,
+    /// Why: the evidence per region, as the fit recorded it.
+    pub choice_evidence: Option<fit::select::SelectionSummary>,
     pub kd: Vec<Spread>,
     pub ks: Vec<Spread>,
     pub eta: Spread,
@@ -49,6 +52,7 @@ fn spread(name: &str, values: impl Iterator<Item = f32>) -> Spread {
 pub fn inspect(dir: &Path) -> anyhow::Result<Inspection> {
     let m: Material = material::io::read(dir).with_context(|| format!("reading the material in {}", dir.display()))?;
     let n = m.n_points();
+    let measured: Vec<usize> = (0..n).filter(|&p| m.is_measured(p)).collect();
     let flags = fit::partial::point_flag::NAMES
         .iter()
         .map(|&(bit, name)| (name.to_string(), m.flags.iter().filter(|&&f| f & bit != 0).count()))
@@ -62,7 +66,7 @@ pub fn inspect(dir: &Path) -> anyhow::Result<Inspection> {
             ("tabulated".to_string(), Choice::Tabulated),
         ]
         .into_iter()
-        .map(|(name, k)| (name, c.choice.iter().filter(|&&x| x == k).count()))
+        .map(|(name, k)| (name, measured.iter().filter(|&&p| c.choice.get(p) == Some(&k)).count()))
         .collect(),
         None => Vec::new(),
     };
@@ -70,7 +74,7 @@ pub fn inspect(dir: &Path) -> anyhow::Result<Inspection> {
         ["r", "g", "b"]
             .iter()
             .enumerate()
-            .map(|(c, ch)| spread(&format!("{prefix}_{ch}"), v.iter().map(|x| x[c])))
+            .map(|(c, ch)| spread(&format!("{prefix}_{ch}"), measured.iter().map(|&p| v[p][c])))
             .collect()
     };
     let models = m
@@ -83,7 +87,7 @@ pub fn inspect(dir: &Path) -> anyhow::Result<Inspection> {
                 .param_names()
                 .iter()
                 .enumerate()
-                .map(|(j, name)| spread(name, (0..n).map(|p| mm.params[p * k + j])))
+                .map(|(j, name)| spread(name, measured.iter().map(|&p| mm.params[p * k + j])))
                 .collect();
             ModelSummary { model: mm.model.name().to_string(), fit_seconds: mm.fit_seconds, params }
         })
@@ -95,9 +99,10 @@ pub fn inspect(dir: &Path) -> anyhow::Result<Inspection> {
         ndf: m.ndf.as_ref().map(|_| format!("{:?}", m.ndf_kind).to_lowercase()),
         flags,
         choice,
+        choice_evidence: m.provenance.get("model_choice").and_then(|v| serde_json::from_value(v.clone()).ok()),
         kd: rgb(&m.kd, "kd"),
         ks: rgb(&m.ks, "ks"),
-        eta: spread("eta", m.eta.iter().copied()),
+        eta: spread("eta", measured.iter().map(|&p| m.eta[p])),
         models,
     })
 }
@@ -120,11 +125,55 @@ pub fn print(i: &Inspection) {
         let f: Vec<String> = i.choice.iter().map(|(n, c)| format!("{n} {c}")).collect();
         println!("model choice: {}", f.join(", "));
     }
+    if let Some(e) = &i.choice_evidence {
+        print_choice(e);
+    }
     let row = |s: &Spread| println!("  {:<12} {:>10.4} {:>10.4} {:>10.4}", s.name, s.p05, s.p50, s.p95);
     println!("  {:<12} {:>10} {:>10} {:>10}", "", "p05", "median", "p95");
     i.kd.iter().chain(&i.ks).chain(std::iter::once(&i.eta)).for_each(row);
     for m in &i.models {
         println!("{} (fitted in {:.1} s)", m.model, m.fit_seconds);
         m.params.iter().for_each(row);
+    }
+}
+
+/// Each region's scores: RMS residual over the noise's RMS on the scored
+/// samples, per class, and the one chosen.
+fn print_choice(e: &fit::select::SelectionSummary) {
+    use fit::select::ScoredOn;
+    let on = match e.scored_on {
+        ScoredOn::HeldOutSteps => "gantry steps held out of a second fit",
+        ScoredOn::FitSamples => "the fit's own samples (too few steps to hold any out; favours the table)",
+    };
+    println!(
+        "  why: per region, RMS residual / noise RMS on {on}; the simplest class within `resolution` (of ratio^2) of the best is chosen"
+    );
+    let (iso, aniso) = (e.isotropic_model.as_str(), e.anisotropic_model.as_str());
+    println!(
+        "  {:>6} {:>7} {:>8} {:>11} {:>11} {:>10} {:>10}  chosen",
+        "region", "points", "samples", iso, aniso, "tabulated", "resolution"
+    );
+    let names = ["diffuse", iso, aniso, "tabulated"];
+    let f = |x: Option<f32>| x.map_or("-".to_string(), |v| format!("{v:.3}"));
+    for (k, r) in e.regions.iter().enumerate() {
+        println!(
+            "  {:>6} {:>7} {:>8} {:>11} {:>11} {:>10} {:>10.4}  {}",
+            k,
+            r.points,
+            r.samples,
+            f(r.ratio[0]),
+            f(r.ratio[1]),
+            f(r.ratio[2]),
+            r.resolution,
+            names.get(r.chosen as usize).unwrap_or(&"?")
+        );
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn the_fitter_and_the_format_agree_on_the_unmeasured_bit() {
+        assert_eq!(fit::partial::point_flag::OUT_OF_VIEW, material::UNMEASURED);
     }
 }

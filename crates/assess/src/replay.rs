@@ -100,6 +100,7 @@ pub fn material_from(out: &fit::FitResult, info: &store::CaptureInfo, q: &config
             "quality": q,
             "calibration": info.calibration.id,
             "simulated": info.simulated,
+            "model_choice": out.selection.as_ref().map(|s| &s.summary),
             "fit_seconds": {
                 "partial": out.timings.ingest_s + out.timings.points_s,
                 "synthesized": out.timings.ingest_s + out.timings.points_s + out.timings.synthesis_s

@@ -15,7 +15,7 @@ use crate::model::{
     AshikhminShirley, Brdf, CookTorrance, He, Lafortune, LafortuneLobe, Microfacet, PhongModified, Ward,
     WardNormalisation,
 };
-use crate::ndf::Ggx;
+use crate::ndf::{Beckmann, Ggx};
 
 /// The analytic models the fitter fits.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
@@ -34,10 +34,15 @@ pub enum AnalyticModel {
     /// Anisotropic GGX with Smith masking and relative dielectric Fresnel.
     GgxAniso,
     He,
+    /// Anisotropic Beckmann with Smith masking and relative dielectric
+    /// Fresnel: GGX's microfacet form with Gaussian-slope tails, which
+    /// fall off far faster away from the peak (Walter et al. 2007 compare
+    /// the two).
+    BeckmannAniso,
 }
 
 impl AnalyticModel {
-    pub const ALL: [AnalyticModel; 8] = [
+    pub const ALL: [AnalyticModel; 9] = [
         AnalyticModel::Phong,
         AnalyticModel::WardIso,
         AnalyticModel::WardAniso,
@@ -46,6 +51,7 @@ impl AnalyticModel {
         AnalyticModel::AshikhminShirley,
         AnalyticModel::GgxAniso,
         AnalyticModel::He,
+        AnalyticModel::BeckmannAniso,
     ];
 
     pub fn name(self) -> &'static str {
@@ -58,6 +64,7 @@ impl AnalyticModel {
             AnalyticModel::AshikhminShirley => "ashikhmin_shirley",
             AnalyticModel::GgxAniso => "ggx_aniso",
             AnalyticModel::He => "he",
+            AnalyticModel::BeckmannAniso => "beckmann_aniso",
         }
     }
 
@@ -76,6 +83,7 @@ impl AnalyticModel {
             AnalyticModel::AshikhminShirley => &["nu", "nv", "angle_rad"],
             AnalyticModel::GgxAniso => &["alpha_x", "alpha_y", "angle_rad", "eta"],
             AnalyticModel::He => &["sigma0_um", "tau_um", "eta"],
+            AnalyticModel::BeckmannAniso => &["alpha_x", "alpha_y", "angle_rad", "eta"],
         }
     }
 
@@ -100,6 +108,7 @@ impl AnalyticModel {
                 | AnalyticModel::Lafortune
                 | AnalyticModel::AshikhminShirley
                 | AnalyticModel::GgxAniso
+                | AnalyticModel::BeckmannAniso
         )
     }
 
@@ -136,6 +145,12 @@ impl AnalyticModel {
                 kd,
                 ks,
                 ndf: Ggx::new(s[0], s[1], s[2]),
+                fresnel: Fresnel::DielectricRelative { eta: eta(s[3]) },
+            }),
+            AnalyticModel::BeckmannAniso => Arc::new(Microfacet {
+                kd,
+                ks,
+                ndf: Beckmann::new(s[0], s[1], s[2]),
                 fresnel: Fresnel::DielectricRelative { eta: eta(s[3]) },
             }),
             AnalyticModel::He => Arc::new(He {

@@ -86,3 +86,40 @@ fn normalisations_give_albedo_ks_at_normal_incidence() {
     let a = albedo_quadrature(&m, Vec3::Z, 2000, 256);
     assert!((a - ks as f64).abs() < 0.01, "microfacet: {a}");
 }
+
+/// Each analytic model but Lafortune's unnormalised lobe reflects at most
+/// the light it receives with a unit specular amplitude, or, for GGX and
+/// Beckmann (whose Fresnel term is relative to normal incidence), with the
+/// amplitude `F(0)` of their index, the bound of a smooth interface; the
+/// fitter bounds the amplitudes accordingly (`fit::analytic::max_ks`).
+#[test]
+fn analytic_models_at_their_specular_bound_conserve_energy() {
+    use brdf::params::AnalyticModel;
+    for model in AnalyticModel::ALL {
+        let shapes: &[&[f32]] = match model {
+            AnalyticModel::Phong => &[&[2.0], &[30.0], &[500.0]],
+            AnalyticModel::WardIso => &[&[0.05], &[0.2], &[0.6]],
+            AnalyticModel::WardAniso => &[&[0.05, 0.3, 0.5], &[0.3, 0.6, -1.0]],
+            AnalyticModel::CookTorrance => &[&[0.05, 1.5], &[0.3, 1.3], &[0.6, 30.0]],
+            AnalyticModel::AshikhminShirley => &[&[10.0, 100.0, 0.5], &[500.0, 500.0, 0.0]],
+            AnalyticModel::GgxAniso | AnalyticModel::BeckmannAniso => {
+                &[&[0.05, 0.3, 0.5, 1.5], &[0.3, 0.6, -1.0, 1.3], &[0.6, 0.6, 0.0, 30.0]]
+            }
+            AnalyticModel::He => &[&[0.18, 3.0, 1.5], &[0.5, 2.0, 1.3]],
+            AnalyticModel::Lafortune => continue,
+        };
+        for shape in shapes {
+            let ks = match model {
+                AnalyticModel::GgxAniso | AnalyticModel::BeckmannAniso => brdf::fresnel::dielectric_f0(shape[3]),
+                _ => 1.0,
+            };
+            let mut p = vec![0.0, 0.0, 0.0, ks, ks, ks];
+            p.extend_from_slice(shape);
+            let b = model.build(&p).expect("a full parameter vector");
+            for t_deg in [0.0f64, 30.0, 60.0, 80.0, 89.0] {
+                let a = albedo_sampled(b.as_ref(), dir(t_deg.to_radians(), 0.3), 300, 11);
+                assert!(a <= 1.0 + TOLERANCE, "{} {shape:?} theta_o {t_deg}: albedo {a}", model.name());
+            }
+        }
+    }
+}

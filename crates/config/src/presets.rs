@@ -15,9 +15,10 @@
 //! | synthesis rotation angles | 48 | 96 | 384 |
 //! | synthesis neighbours looked up per point | 24 | 48 | 96 |
 //! | synthesis passes | 1 | 2 | 2 |
-//! | analytic fits | Ward iso/aniso | all eight | all eight |
+//! | analytic fits | Ward iso/aniso, Cook-Torrance, GGX and Beckmann aniso | all nine | all nine |
 //! | analytic fit clusters (shape parameters shared) | 16 | 32 | 64 |
 //! | pooled NDF clusters (materials, `fit::pooled`) | 16 | 32 | 64 |
+//! | model choice (`fit::select`) scored on | every 8th step, held out of a second fit | the same | the same |
 //!
 //! The figures behind these choices are in `refl tradeoff` (see the README).
 
@@ -77,9 +78,16 @@ pub fn preset(name: &str) -> Option<Quality> {
                 ..SynthSettings::default()
             },
             analytic: AnalyticSettings {
-                models: vec![AnalyticModel::WardIso, AnalyticModel::WardAniso],
+                models: vec![
+                    AnalyticModel::WardIso,
+                    AnalyticModel::WardAniso,
+                    AnalyticModel::CookTorrance,
+                    AnalyticModel::GgxAniso,
+                    AnalyticModel::BeckmannAniso,
+                ],
                 clusters: 16,
                 seed: 7,
+                ..AnalyticSettings::default()
             },
             pool: Some(PoolSettings { clusters: 16, seed: 1 }),
         },
@@ -100,7 +108,7 @@ pub fn preset(name: &str) -> Option<Quality> {
                 passes: 2,
                 ..SynthSettings::default()
             },
-            analytic: AnalyticSettings { models: all, clusters: 32, seed: 7 },
+            analytic: AnalyticSettings { models: all, clusters: 32, seed: 7, ..AnalyticSettings::default() },
             pool: Some(PoolSettings { clusters: 32, seed: 1 }),
         },
         "best" => Quality {
@@ -121,7 +129,7 @@ pub fn preset(name: &str) -> Option<Quality> {
                 passes: 2,
                 ..SynthSettings::default()
             },
-            analytic: AnalyticSettings { models: all, clusters: 64, seed: 7 },
+            analytic: AnalyticSettings { models: all, clusters: 64, seed: 7, ..AnalyticSettings::default() },
             pool: Some(PoolSettings { clusters: 64, seed: 1 }),
         },
         _ => return None,

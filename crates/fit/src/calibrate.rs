@@ -121,6 +121,13 @@ impl<'a> WhiteAccumulator<'a> {
             ss += r * r;
             n += 1;
         }
+        // A point without data (its pixels see past the sample's edge)
+        // takes the flat field of its nearest measured neighbour: the
+        // flat field is smooth, and a later grid's point between the two
+        // interpolates between them.
+        let measured: Vec<bool> = (0..np).map(|p| (0..nq).any(|q| data[q * np + p].0.is_finite())).collect();
+        let stand_in = self.ctx.inputs.grid.stand_ins(&measured);
+        let lf: Vec<f64> = stand_in.iter().map(|&j| lf[j as usize]).collect();
         // Every step gives an estimate of the same LED: average them.
         let mut led_scale = base.led_scale.clone();
         let n_leds = led_scale.len();

@@ -48,6 +48,16 @@ pub struct SampleGeometry {
 /// there amplifies noise and any error in the sample's height by 30x.
 pub const MIN_COS_I: f32 = 0.035;
 
+/// How far, in pixels, a point's value reaches in the frame: the bilinear
+/// sample reads the pixels whose centres are within one pixel of it, the
+/// bilinear demosaicing of a Bayer frame takes each of those from its
+/// neighbours one pixel further, and a pixel integrates over half a pixel
+/// beyond its centre. A point whose reach leaves the sample (or the frame)
+/// mixes in whatever lies beyond the edge and is not measured; the
+/// material shows it with its nearest measured neighbour
+/// (`material::MaterialView`).
+pub const PIXEL_REACH: f32 = 2.5;
+
 /// Safety margin around the light bar when masking occluded samples: one
 /// millimetre covers the bar's edges blurring over a pixel and small
 /// errors of the camera pose.
@@ -57,7 +67,8 @@ pub const OCCLUSION_MARGIN_MM: f32 = 1.0;
 pub struct FitContext {
     pub inputs: FitInputs,
     pub positions: Vec<Vec3>,
-    /// Continuous pixel coordinates of each point (None if out of view).
+    /// Continuous pixel coordinates of each point (None if out of view, or
+    /// so near the sample's edge that its pixels see beyond it).
     pub pixels: Vec<Option<Vec2>>,
     pub view: Vec<Vec3>,
     pub flat: Vec<f32>,
@@ -79,10 +90,12 @@ impl FitContext {
             let p = inputs.grid.position_of(&g.sample, i).extend(0.0);
             positions.push(p);
             let px = g.camera.project(p).filter(|px| {
-                px.x >= 1.0
-                    && px.y >= 1.0
-                    && px.x <= g.camera.width as f32 - 1.0
-                    && px.y <= g.camera.height as f32 - 1.0
+                let (w, h) = (g.camera.width as f32, g.camera.height as f32);
+                px.x >= PIXEL_REACH
+                    && px.y >= PIXEL_REACH
+                    && px.x <= w - PIXEL_REACH
+                    && px.y <= h - PIXEL_REACH
+                    && g.camera.sees_only(&g.sample, *px, PIXEL_REACH)
             });
             pixels.push(px);
             view.push(g.camera.view_dir(p));

@@ -87,8 +87,16 @@ pub mod point_flag {
 
 /// Index of refraction used when it cannot be fitted (typical dielectrics).
 pub const DEFAULT_ETA: f32 = 1.5;
-/// Search range of the Fresnel fit.
-pub const ETA_RANGE: (f32, f32) = (1.05, 30.0);
+/// Range of every fitted Fresnel index (the tables' and the analytic
+/// lobes'). Below: the lowest refractive indices of common solids are
+/// about 1.3 (water ice 1.31, PTFE 1.35, magnesium fluoride 1.38), and the
+/// relative Fresnel term `F(theta) / F(0)` grows without bound as the
+/// index nears 1 (at 1.05, 1,700 times at grazing), so an index the rig's
+/// angles cannot pin down must not drift there: brushed metal's tables sat
+/// at the old bound of 1.05 and its GGX fit at 1.005 (issue 16's note).
+/// Above 30 the term is flat to within 1% at the rig's angles, as a
+/// metal's nearly is.
+pub const ETA_RANGE: (f32, f32) = (1.3, 30.0);
 
 /// One usable sample of a point.
 #[derive(Clone, Copy, Debug, PartialEq)]

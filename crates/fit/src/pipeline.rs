@@ -12,9 +12,12 @@
 //!    its completed table ([`synthesis_stage`]).
 //! 4. **Pooling** (optional): the points of one material share one NDF,
 //!    estimated from all their samples ([`crate::pooled`]).
-//! 5. **Analytic fits and model choice** (optional): every analytic model
-//!    fitted per point, starting from the points' own tables, then the
-//!    per-point choice ([`analytic_stage`]).
+//! 5. **Analytic fits** (optional): every analytic model fitted per
+//!    point, starting from the points' own tables ([`analytic_stage`]).
+//! 6. **Model choice** (with the analytic fits): stages 2-5 run a second
+//!    time without every k-th gantry step (on a quarter of the points of a
+//!    large grid), and each region takes the simplest class that predicts
+//!    those steps as well as any ([`crate::select`]).
 //!
 //! Between stages (and between analytic models) the caller's `stop` is
 //! polled; a stop ends the run with [`FitError::Stopped`].
@@ -23,13 +26,17 @@ use std::time::Instant;
 
 use brdf::ndf::{MaskingOperator, TableSet};
 use frame::Frame;
+use glam::Vec3;
+use rayon::prelude::*;
 use serde::Serialize;
 use setup::PlannedShot;
 use thiserror::Error;
 
-use crate::analytic::{AnalyticSettings, ModelFit};
+use crate::analytic::{AnalyticSettings, Evidence, ModelFit};
+use crate::partial::Sample;
 use crate::samples::{Census, SampleStore};
 use crate::select::Selection;
+use crate::settings::StepSet;
 use crate::synth::{SynthSettings, SynthStats};
 use crate::{FitContext, FitSettings, Ingest, PointMaps, point_flag};
 
@@ -190,67 +197,147 @@ fn run_from(
     stop: &dyn Fn() -> bool,
     started: Instant,
 ) -> Result<FitResult, FitError> {
-    let stopped = || if stop() { Err(FitError::Stopped) } else { Ok(()) };
-    stopped()?;
+    if stop() {
+        return Err(FitError::Stopped);
+    }
     let census = store.census();
     let few_samples = check_census(&census, store.n_points() * store.n_lights())?;
     if let Some(w) = &few_samples {
         tracing::warn!("few usable samples: {w}");
     }
+    let mut timings = Timings::default();
+    let fitted = fit_stages(ctx, &store, &settings, stages, stop, started, &mut timings)?;
+    let selection = match (&stages.analytic, &fitted.evidence) {
+        (Some(a), Some(ev)) => {
+            let t = Instant::now();
+            let scores = choice_scores(ctx, &store, &settings, stages, a, ev, &fitted, stop)?;
+            let selection = crate::select::select(&fitted.maps, &ev.cluster, ev.clusters, &scores);
+            timings.selection_s = t.elapsed().as_secs_f64();
+            selection
+        }
+        _ => None,
+    };
+    let sample_bytes = store.bytes();
+    let samples = stages.keep_samples.then_some(store);
+    Ok(FitResult {
+        maps: fitted.maps,
+        census,
+        sample_bytes,
+        frames: 0,
+        timings,
+        settings,
+        partial: fitted.partial,
+        pool: fitted.pool,
+        synth: fitted.synth,
+        models: fitted.models,
+        selection,
+        samples,
+        few_samples,
+    })
+}
+
+/// What the stages before the model choice produced.
+struct Fitted {
+    maps: PointMaps,
+    partial: Option<PartialMaps>,
+    pool: Option<crate::pooled::PoolStats>,
+    synth: Option<SynthStats>,
+    models: Vec<ModelFit>,
+    evidence: Option<Evidence>,
+}
+
+/// Stages 2-5 without the choice: per point, synthesis, pooling, analytic
+/// fits.
+fn fit_stages(
+    ctx: &FitContext,
+    store: &SampleStore,
+    settings: &FitSettings,
+    stages: &Stages,
+    stop: &dyn Fn() -> bool,
+    started: Instant,
+    timings: &mut Timings,
+) -> Result<Fitted, FitError> {
+    let stopped = || if stop() { Err(FitError::Stopped) } else { Ok(()) };
     let op = MaskingOperator::new(settings.grid);
-    let mut maps = crate::points::fit_points(ctx, &store, &settings, &op);
-    let mut timings = Timings { points_s: started.elapsed().as_secs_f64(), ..Timings::default() };
+    let mut maps = crate::points::fit_points(ctx, store, settings, &op);
+    timings.points_s = started.elapsed().as_secs_f64();
     stopped()?;
     let (partial, synth) = match &stages.synth {
         Some(ss) => {
             let t = Instant::now();
-            let (partial, stats) = synthesis_stage(ctx, &store, &mut maps, ss, &settings, &op);
+            let (partial, stats) = synthesis_stage(ctx, store, &mut maps, ss, settings, &op);
             timings.synthesis_s = t.elapsed().as_secs_f64();
             (Some(partial), Some(stats))
         }
         None => (None, None),
     };
     // Pooling runs on the completed tables (their masking is the better
-    // start). The analytic fits and the model choice keep to the points'
-    // own tables, as without pooling: started from pooled tables' moments
-    // brushed metal's anisotropic Ward fit lost half its accuracy, and
-    // judged against pooled tables' (lower) in-sample residuals the choice
-    // took tables where Ward renders better (measured in issue 16's note).
+    // start). The analytic fits keep to the points' own tables, as without
+    // pooling: started from pooled tables' moments brushed metal's
+    // anisotropic Ward fit lost half its accuracy (measured in issue 16's
+    // note).
     let per_point = stages.pool.as_ref().and(stages.analytic.as_ref()).map(|_| maps.clone());
     let pool = stages.pool.as_ref().map(|ps| {
         let t = Instant::now();
         let observed = partial.as_ref().map(|p| &p.tables);
-        let stats = crate::pooled::pool(ctx, &store, &mut maps, &settings, ps, &op, observed);
+        let stats = crate::pooled::pool(ctx, store, &mut maps, settings, ps, &op, observed);
         timings.pool_s = t.elapsed().as_secs_f64();
         stats
     });
     stopped()?;
-    let (models, selection) = match &stages.analytic {
+    let (models, evidence) = match &stages.analytic {
         Some(a) if !a.models.is_empty() => {
-            let a = analytic_stage(ctx, &store, &maps, per_point.as_ref().unwrap_or(&maps), &settings, a, stop)?;
+            let a = analytic_stage(ctx, store, per_point.as_ref().unwrap_or(&maps), settings, a, stop)?;
             timings.analytic_s = a.analytic_s;
-            timings.selection_s = a.selection_s;
-            (a.models, a.selection)
+            (a.models, Some(a.evidence))
         }
         _ => (Vec::new(), None),
     };
-    let sample_bytes = store.bytes();
-    let samples = stages.keep_samples.then_some(store);
-    Ok(FitResult {
-        maps,
-        census,
-        sample_bytes,
-        frames: 0,
-        timings,
-        settings,
-        partial,
-        pool,
-        synth,
-        models,
-        selection,
-        samples,
-        few_samples,
-    })
+    Ok(Fitted { maps, partial, pool, synth, models, evidence })
+}
+
+/// The model choice's refit fits every other point along each axis (a
+/// quarter of them) on grids at least this many points a side: 256 or
+/// more points, tens per region, each with tens of held-out samples. Its
+/// pooled tables and syntheses draw on a quarter of the points, which
+/// still number hundreds per material; the held-out steps lie between the
+/// training steps, where synthesis adds nothing.
+const CHOICE_STRIDE_MIN_SIDE: u32 = 32;
+
+/// The model choice's scores ([`crate::select`]): every stage fitted again
+/// without the choice's held-out steps (on a quarter of the points of a
+/// large grid), each class of that fit scored on their samples; on the
+/// fit's own samples when the plan cannot spare two such steps.
+#[allow(clippy::too_many_arguments)]
+fn choice_scores(
+    ctx: &FitContext,
+    store: &SampleStore,
+    settings: &FitSettings,
+    stages: &Stages,
+    a: &AnalyticSettings,
+    ev: &Evidence,
+    fitted: &Fitted,
+    stop: &dyn Fn() -> bool,
+) -> Result<crate::select::Scores, FitError> {
+    use crate::select::{ScoredOn, scores};
+    let held = a.choice_holdout_every.map(StepSet::for_choice).filter(|s| s.count(ctx.inputs.plan.steps) >= 2);
+    let Some(held) = held else {
+        let (samples, view) = ev.samples();
+        return Ok(scores(ScoredOn::FitSamples, samples, view, &fitted.maps, &fitted.models));
+    };
+    let g = ctx.inputs.grid;
+    let stride = (g.cols >= CHOICE_STRIDE_MIN_SIDE && g.rows >= CHOICE_STRIDE_MIN_SIDE).then_some(2);
+    let refit = FitSettings { choice_holdout: Some(held), point_stride: stride, ..settings.clone() };
+    let mut ignored = Timings::default();
+    let h = fit_stages(ctx, store, &refit, stages, stop, Instant::now(), &mut ignored)?;
+    let (samples, view): (Vec<Vec<Sample>>, Vec<Vec3>) = (0..ctx.n_points())
+        .into_par_iter()
+        .map(|p| {
+            let ps = crate::points::gather_choice_held_out(ctx, store, p, &refit);
+            (ps.samples, ps.o)
+        })
+        .unzip();
+    Ok(scores(ScoredOn::HeldOutSteps, &samples, &view, &h.maps, &h.models))
 }
 
 /// Synthesis: complete every point's partial table from other points'
@@ -276,37 +363,31 @@ pub fn synthesis_stage(
 #[derive(Debug)]
 pub struct AnalyticOutcome {
     pub models: Vec<ModelFit>,
-    pub selection: Option<Selection>,
+    /// The clusters and evaluation samples the fits shared.
+    pub evidence: Evidence,
     pub analytic_s: f64,
-    pub selection_s: f64,
 }
 
-/// Fit every analytic model per point, then choose per point among
-/// diffuse, the analytic fits and the table. The fits, and the choice's
-/// tabulated reference, are the points' own (`init`: the maps before
-/// pooling when it ran, else `maps`); the choice is recorded for `maps`.
+/// Fit every analytic model per point, starting from the points' own
+/// tables (`init`: the maps before pooling when it ran).
 pub fn analytic_stage(
     ctx: &FitContext,
     store: &SampleStore,
-    maps: &PointMaps,
     init: &PointMaps,
     settings: &FitSettings,
     a: &AnalyticSettings,
     stop: &dyn Fn() -> bool,
 ) -> Result<AnalyticOutcome, FitError> {
     let t = Instant::now();
-    let ev = crate::analytic::evidence(ctx, store, init, settings, a);
+    let evidence = crate::analytic::evidence(ctx, store, init, settings, a);
     let mut models = Vec::with_capacity(a.models.len());
     for &m in &a.models {
         if stop() {
             return Err(FitError::Stopped);
         }
-        models.push(crate::analytic::fit_model(m, init, &ev));
+        models.push(crate::analytic::fit_model(m, init, &evidence));
     }
-    let analytic_s = t.elapsed().as_secs_f64();
-    let t = Instant::now();
-    let selection = crate::select::select(maps, &ev, &models);
-    Ok(AnalyticOutcome { models, selection, analytic_s, selection_s: t.elapsed().as_secs_f64() })
+    Ok(AnalyticOutcome { models, evidence, analytic_s: t.elapsed().as_secs_f64() })
 }
 
 #[cfg(test)]

@@ -29,17 +29,38 @@ impl PointMaps {
     }
 }
 
-/// Collect one point's usable samples with their noise variance.
+/// Collect one point's usable samples with their noise variance (the
+/// lights the settings do not hold out).
 pub fn gather(ctx: &FitContext, store: &SampleStore, p: usize, settings: &FitSettings) -> PointSamples {
+    gather_where(ctx, store, p, settings, |q| !settings.holds_out(&ctx.inputs.plan, q))
+}
+
+/// The samples of the model choice's held-out lights at point `p`
+/// ([`FitSettings::choice_holds_out`]).
+pub fn gather_choice_held_out(ctx: &FitContext, store: &SampleStore, p: usize, settings: &FitSettings) -> PointSamples {
+    gather_where(ctx, store, p, settings, |q| settings.choice_holds_out(&ctx.inputs.plan, q))
+}
+
+fn gather_where(
+    ctx: &FitContext,
+    store: &SampleStore,
+    p: usize,
+    settings: &FitSettings,
+    keep: impl Fn(usize) -> bool,
+) -> PointSamples {
     let inputs = &ctx.inputs;
     let exposures = &inputs.plan.exposures_us;
     let gain = inputs.plan.gain.max(crate::tol::MIN_DIVISOR);
     let read = inputs.calibration.read_noise_dn.iter().sum::<f32>() / 3.0;
     let e_per_dn = inputs.e_per_dn.max(crate::tol::MIN_DIVISOR);
-    let mut ps = PointSamples { o: ctx.view[p], in_view: ctx.pixels[p].is_some(), ..PointSamples::default() };
+    let in_view = ctx.pixels[p].is_some() && settings.fits_point(&inputs.grid, p);
+    let mut ps = PointSamples { o: ctx.view[p], in_view, ..PointSamples::default() };
+    if !in_view {
+        return ps;
+    }
     ps.samples.reserve(ctx.n_lights());
     for q in 0..ctx.n_lights() {
-        if settings.holds_out(&inputs.plan, q) {
+        if !keep(q) {
             continue;
         }
         let (rho, fl) = store.get(q, p);

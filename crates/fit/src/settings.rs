@@ -36,13 +36,65 @@ pub struct FitSettings {
     /// not single LEDs, so that a held-out light is never interpolated
     /// between training lights on both sides along the bar.
     pub holdout_every: Option<u32>,
+    /// Steps the model choice's refit leaves out besides `holdout_every`'s
+    /// (set by the pipeline for that refit only, never stored).
+    #[serde(skip)]
+    pub choice_holdout: Option<StepSet>,
+    /// Fit only the points on every k-th column and row of the grid; the
+    /// others are left unmeasured (the model choice's refit: a quarter of
+    /// the points at k = 2 score each region on hundreds of held-out
+    /// samples in a quarter of the time). Never stored.
+    #[serde(skip)]
+    pub point_stride: Option<u32>,
+}
+
+/// The gantry steps with `step % every == offset`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct StepSet {
+    pub every: u32,
+    pub offset: u32,
+}
+
+impl StepSet {
+    /// The model choice's held-out steps when it holds out every `every`-th:
+    /// offset by half a period from the evaluation's (`offset` 0), so that
+    /// an evaluation's hold-out never scores the data the choice used, and
+    /// away from the first step at the end of the gantry's travel, where
+    /// most lights are dim or grazing.
+    pub fn for_choice(every: u32) -> Self {
+        Self { every, offset: every / 2 }
+    }
+
+    pub fn contains(&self, step: u32) -> bool {
+        self.every > 0 && step % self.every == self.offset % self.every
+    }
+
+    /// How many of a plan's `steps` it holds.
+    pub fn count(&self, steps: u32) -> u32 {
+        (0..steps).filter(|&s| self.contains(s)).count() as u32
+    }
 }
 
 impl FitSettings {
+    /// Is point `p` of `grid` fitted?
+    pub fn fits_point(&self, grid: &setup::PointGrid, p: usize) -> bool {
+        let cols = grid.cols.max(1) as usize;
+        self.point_stride.is_none_or(|k| k <= 1 || ((p % cols) as u32 % k == 0 && (p / cols) as u32 % k == 0))
+    }
+
     /// Is light `q` of `plan` held out of the fit?
     pub fn holds_out(&self, plan: &setup::CapturePlan, q: usize) -> bool {
-        let per_step = plan.leds.len().max(1);
-        self.holdout_every.is_some_and(|k| k > 0 && ((q / per_step) as u32).is_multiple_of(k))
+        let step = (q / plan.leds.len().max(1)) as u32;
+        self.holdout_every.is_some_and(|k| k > 0 && step.is_multiple_of(k))
+            || self.choice_holdout.is_some_and(|s| s.contains(step))
+    }
+
+    /// Is light `q` among the model choice's held-out lights (and not the
+    /// evaluation's)?
+    pub fn choice_holds_out(&self, plan: &setup::CapturePlan, q: usize) -> bool {
+        let step = (q / plan.leds.len().max(1)) as u32;
+        self.choice_holdout.is_some_and(|s| s.contains(step))
+            && !self.holdout_every.is_some_and(|k| k > 0 && step.is_multiple_of(k))
     }
 }
 
@@ -57,6 +109,8 @@ impl Default for FitSettings {
             observed_weight: 0.2,
             kernel_scale: 0.5,
             holdout_every: None,
+            choice_holdout: None,
+            point_stride: None,
         }
     }
 }

@@ -7,6 +7,12 @@ use brdf::params::AnalyticModel;
 use serde::{Deserialize, Serialize};
 use setup::{PointGrid, SampleArea};
 
+/// The flag bit (`fit::point_flag::OUT_OF_VIEW`, `out_of_view` in
+/// MATERIAL.md) of a point the camera did not measure: out of its view, or
+/// so near the sample's edge that its pixels saw past it. Its maps hold no
+/// fit; a [`crate::MaterialView`] shows its nearest measured neighbour.
+pub const UNMEASURED: u32 = 0x40;
+
 /// What produced the main NDF tables.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -103,6 +109,23 @@ pub struct Material {
 impl Material {
     pub fn n_points(&self) -> usize {
         self.grid.len()
+    }
+
+    /// Whether the camera measured point `p` (a material without flags
+    /// counts every point measured).
+    pub fn is_measured(&self, p: usize) -> bool {
+        self.flags.get(p).is_none_or(|f| f & UNMEASURED == 0)
+    }
+
+    /// The point shown for each grid point: itself, or for an
+    /// [`UNMEASURED`] one its nearest measured neighbour (renders and
+    /// exports extend the measurement to the sample's edges this way).
+    pub fn stand_ins(&self) -> Vec<u32> {
+        if self.flags.len() != self.n_points() {
+            return (0..self.n_points() as u32).collect();
+        }
+        let measured: Vec<bool> = (0..self.n_points()).map(|p| self.is_measured(p)).collect();
+        self.grid.stand_ins(&measured)
     }
 
     /// Nearest grid point to a sample position.

@@ -12,7 +12,7 @@ pub mod point;
 pub mod rgl;
 pub mod view;
 
-pub use data::{Choice, ChoiceMap, Material, ModelMap, NdfKind, PartialFit};
+pub use data::{Choice, ChoiceMap, Material, ModelMap, NdfKind, PartialFit, UNMEASURED};
 pub use io::{MaterialError, WriteMode, read, write};
 pub use point::{PointMaterial, SvBrdf};
 pub use view::{MaterialView, ModelChoice};

@@ -40,6 +40,10 @@ pub struct MaterialView {
     choice: ModelChoice,
     masking: Option<Arc<MaskingOperator>>,
     cache: Vec<OnceLock<Option<Arc<dyn Ndf>>>>,
+    /// The point shown at each grid point: itself, or for a point the
+    /// camera could not measure ([`crate::data::UNMEASURED`]), its nearest
+    /// measured neighbour.
+    stand_in: Vec<u32>,
     name: String,
 }
 
@@ -72,7 +76,8 @@ impl MaterialView {
         let masking = if needs_tables { grid.map(|g| Arc::new(MaskingOperator::new(g))) } else { None };
         let name = format!("{} ({choice:?})", material.name);
         let cache = (0..material.n_points()).map(|_| OnceLock::new()).collect();
-        Some(Self { material, choice, masking, cache, name })
+        let stand_in = material.stand_ins();
+        Some(Self { material, choice, masking, cache, stand_in, name })
     }
 
     pub fn material(&self) -> &Material {
@@ -129,7 +134,7 @@ impl SvBrdf for MaterialView {
 
     fn at(&self, p_mm: Vec2) -> PointMaterial {
         match self.material.point_at(p_mm) {
-            Some(p) => self.point(p),
+            Some(p) => self.point(self.stand_in[p] as usize),
             None => PointMaterial::Diffuse { kd: Vec3::ZERO },
         }
     }

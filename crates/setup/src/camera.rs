@@ -9,6 +9,8 @@
 use glam::{Vec2, Vec3};
 use serde::{Deserialize, Serialize};
 
+use crate::geometry::SampleArea;
+
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct CameraModel {
     pub position_mm: Vec3,
@@ -86,6 +88,16 @@ impl CameraModel {
         Some(Vec2::new(p.x, p.y))
     }
 
+    /// Whether the square of pixels reaching `reach` pixels from `pixel`
+    /// (continuous coordinates, pixel centres at integer + 0.5) sees only
+    /// the sample. The plane's image is a projective map of the square and
+    /// the sample is convex, so the four corners decide.
+    pub fn sees_only(&self, sample: &SampleArea, pixel: Vec2, reach: f32) -> bool {
+        [(-1.0, -1.0), (1.0, -1.0), (-1.0, 1.0), (1.0, 1.0)]
+            .into_iter()
+            .all(|(sx, sy)| self.pixel_to_plane(pixel + reach * Vec2::new(sx, sy)).is_some_and(|q| sample.contains(q)))
+    }
+
     /// Unit direction from a point on the sample toward the camera (`o`).
     pub fn view_dir(&self, p: Vec3) -> Vec3 {
         (self.position_mm - p).normalize()
@@ -113,6 +125,14 @@ mod tests {
         }
         let centre = c.project(Vec3::ZERO).unwrap();
         assert!((centre - Vec2::new(128.0, 128.0)).length() < 1e-3);
+        // A pixel at the sample's centre sees only the sample, one at a
+        // corner does not, nor does the square of pixels reaching past an
+        // edge from a pixel inside.
+        let s = SampleArea { width_mm: 100.0, height_mm: 100.0 };
+        assert!(c.sees_only(&s, centre, 2.5));
+        assert!(!c.sees_only(&s, c.project(Vec3::new(50.0, 50.0, 0.0)).unwrap(), 0.5));
+        let near_edge = c.project(Vec3::new(0.0, 49.0, 0.0)).unwrap();
+        assert!(c.sees_only(&s, near_edge, 0.1) && !c.sees_only(&s, near_edge, 2.5));
         // The whole 10 cm sample is in view.
         for p in [Vec3::new(-50.0, -50.0, 0.0), Vec3::new(50.0, 50.0, 0.0), Vec3::new(50.0, -50.0, 0.0)] {
             let px = c.project(p).unwrap();

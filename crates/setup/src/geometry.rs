@@ -194,6 +194,49 @@ impl PointGrid {
         self.position(sample, (i % self.cols as usize) as u32, (i / self.cols as usize) as u32)
     }
 
+    /// For each point, the point that stands in for it: itself where
+    /// `measured`, else the nearest measured point (Euclidean distance on
+    /// the grid; of equals, the lowest index). Every point is its own
+    /// stand-in when none is measured.
+    pub fn stand_ins(&self, measured: &[bool]) -> Vec<u32> {
+        let (cols, rows) = (self.cols as i64, self.rows as i64);
+        let any = measured.iter().any(|&m| m);
+        (0..self.len())
+            .map(|i| {
+                if !any || measured.get(i).copied().unwrap_or(false) {
+                    return i as u32;
+                }
+                let (c0, r0) = (i as i64 % cols, i as i64 / cols);
+                let mut best: Option<(i64, usize)> = None;
+                // Ring by ring outward; a ring `r` holds no point nearer
+                // than `r`, so once `r^2` exceeds the best distance the
+                // search is over.
+                for r in 1..cols.max(rows) {
+                    if best.is_some_and(|(d, _)| r * r > d) {
+                        break;
+                    }
+                    for dr in -r..=r {
+                        for dc in -r..=r {
+                            if dr.abs() != r && dc.abs() != r {
+                                continue;
+                            }
+                            let (c, w) = (c0 + dc, r0 + dr);
+                            if c < 0 || w < 0 || c >= cols || w >= rows {
+                                continue;
+                            }
+                            let j = (w * cols + c) as usize;
+                            let d = dc * dc + dr * dr;
+                            if measured[j] && best.is_none_or(|(bd, bj)| d < bd || (d == bd && j < bj)) {
+                                best = Some((d, j));
+                            }
+                        }
+                    }
+                }
+                best.map_or(i as u32, |(_, j)| j as u32)
+            })
+            .collect()
+    }
+
     /// Continuous grid coordinates `(col, row)` of a sample position
     /// (cell centres at integer + 0.5).
     pub fn coords(&self, sample: &SampleArea, p: Vec2) -> Vec2 {
@@ -220,6 +263,25 @@ mod tests {
         assert!(!g.bar.occludes(-80.0, p, eye, 0.0));
         // Off the end of the bar in y nothing is blocked.
         assert!(!g.bar.occludes(-40.0 + 0.0, Vec3::new(0.0, 150.0, 0.0), eye + Vec3::new(0.0, 150.0, 0.0), 0.0));
+    }
+
+    #[test]
+    fn unmeasured_points_borrow_their_nearest_measured_neighbour() {
+        let g = PointGrid { cols: 5, rows: 4 };
+        // Only the inner 3 x 2 block is measured.
+        let measured: Vec<bool> =
+            (0..g.len()).map(|i| (1..4).contains(&(i % 5)) && (1..3).contains(&(i / 5))).collect();
+        let s = g.stand_ins(&measured);
+        for i in 0..g.len() {
+            let j = s[i] as usize;
+            assert!(measured[j], "point {i} borrows unmeasured {j}");
+            let d = |a: usize, b: usize| (a % 5).abs_diff(b % 5).pow(2) + (a / 5).abs_diff(b / 5).pow(2);
+            let nearest = (0..g.len()).filter(|&k| measured[k]).map(|k| d(i, k)).min().unwrap();
+            assert_eq!(d(i, j), nearest, "point {i} borrows {j}, not a nearest one");
+        }
+        assert_eq!(s[6], 6, "a measured point stands for itself");
+        assert_eq!(s[0], 6, "a corner takes the diagonal neighbour");
+        assert_eq!(g.stand_ins(&[false; 20]), (0..20).collect::<Vec<u32>>(), "nothing measured: nothing to borrow");
     }
 
     #[test]

@@ -1,6 +1,6 @@
 //! Analytic model fits: Phong, isotropic and anisotropic Ward, Lafortune,
-//! Cook-Torrance, Ashikhmin-Shirley, anisotropic GGX and He et al., each
-//! fitted to the measured samples.
+//! Cook-Torrance, Ashikhmin-Shirley, anisotropic GGX, He et al. and
+//! anisotropic Beckmann, each fitted to the measured samples.
 //!
 //! **Per cluster shape, per point amplitudes.** Points are clustered by
 //! their NDF (the descriptors of [`crate::synth::descriptor`]); each
@@ -24,8 +24,6 @@ pub mod shape;
 
 use std::time::Instant;
 
-use brdf::Brdf;
-use brdf::ndf::{MaskingOperator, TabulatedNdf};
 use brdf::params::AnalyticModel;
 use glam::Vec3;
 use levenberg_marquardt::{LeastSquaresProblem, LevenbergMarquardt};
@@ -52,11 +50,29 @@ pub struct AnalyticSettings {
     pub models: Vec<AnalyticModel>,
     pub clusters: u32,
     pub seed: u64,
+    /// The model choice scores each class on every k-th gantry step, left
+    /// out of a second fit of every stage (`crate::select`); `None`, or a
+    /// plan too short to spare them, scores on the fit's own samples.
+    #[serde(default = "default_choice_holdout")]
+    pub choice_holdout_every: Option<u32>,
+}
+
+/// Every 8th step: an eighth of the lights, in 4 or more steps for the
+/// presets' plans, sparing the fit most of its data.
+pub const CHOICE_HOLDOUT_EVERY: u32 = 8;
+
+fn default_choice_holdout() -> Option<u32> {
+    Some(CHOICE_HOLDOUT_EVERY)
 }
 
 impl Default for AnalyticSettings {
     fn default() -> Self {
-        Self { models: AnalyticModel::ALL.to_vec(), clusters: 32, seed: 7 }
+        Self {
+            models: AnalyticModel::ALL.to_vec(),
+            clusters: 32,
+            seed: 7,
+            choice_holdout_every: default_choice_holdout(),
+        }
     }
 }
 
@@ -73,20 +89,22 @@ pub struct ModelFit {
     pub seconds: f64,
 }
 
-/// What the fits share: clusters, each point's evaluation samples, its
-/// noise floor and the tabulated model's residual on the same samples.
+/// What the fits share: the clusters and each point's evaluation samples.
 #[derive(Clone, Debug)]
 pub struct Evidence {
     /// Cluster of each point (`u32::MAX` for points without specular).
     pub cluster: Vec<u32>,
     pub clusters: usize,
-    /// Per point: RMS of the samples' noise, cosine-weighted (the floor a
-    /// perfect model reaches).
-    pub noise: Vec<f32>,
-    /// Per point: the tabulated model's residual.
-    pub tabulated: Vec<f32>,
     samples: Vec<Vec<Sample>>,
     view: Vec<Vec3>,
+}
+
+impl Evidence {
+    /// Each point's evaluation samples (up to 256, spread over its lights)
+    /// and view direction.
+    pub fn samples(&self) -> (&[Vec<Sample>], &[Vec3]) {
+        (&self.samples, &self.view)
+    }
 }
 
 fn stride_sample(all: &[Sample], n: usize) -> Vec<Sample> {
@@ -97,7 +115,7 @@ fn stride_sample(all: &[Sample], n: usize) -> Vec<Sample> {
     (0..n).map(|k| all[(k as f32 * step) as usize]).collect()
 }
 
-/// Gather evaluation samples, cluster the points and score the tabulated model.
+/// Gather evaluation samples and cluster the points.
 pub fn evidence(
     ctx: &FitContext,
     store: &SampleStore,
@@ -123,34 +141,7 @@ pub fn evidence(
             cluster[p] = assign[k];
         }
     }
-    let noise: Vec<f32> = samples
-        .iter()
-        .map(|s| {
-            let ss: f64 = s.iter().map(|x| (x.var as f64) * (x.i.z as f64).powi(2)).sum();
-            (ss / s.len().max(1) as f64).sqrt() as f32
-        })
-        .collect();
-    let op = MaskingOperator::new(maps.tables.grid());
-    let tabulated: Vec<f32> = (0..n)
-        .into_par_iter()
-        .map(|p| {
-            let kd = Vec3::from(maps.kd[p]);
-            let ks = Vec3::from(maps.ks[p]);
-            let t = maps.tables.get(p);
-            let model: Box<dyn Brdf> = if maps.flags[p] & point_flag::NO_SPECULAR == 0 && t.integral_cos() > 0.0 {
-                Box::new(brdf::model::Microfacet {
-                    kd,
-                    ks,
-                    ndf: TabulatedNdf::new(t, &op),
-                    fresnel: brdf::fresnel::Fresnel::DielectricRelative { eta: maps.eta[p] },
-                })
-            } else {
-                Box::new(brdf::model::Lambert { albedo: kd })
-            };
-            rms_residual(&samples[p], view[p], |i, o| lum(model.eval(i, o).to_array()))
-        })
-        .collect();
-    Evidence { cluster, clusters, noise, tabulated, samples, view }
+    Evidence { cluster, clusters, samples, view }
 }
 
 fn rms_residual(samples: &[Sample], o: Vec3, f: impl Fn(Vec3, Vec3) -> f32) -> f32 {
@@ -158,9 +149,40 @@ fn rms_residual(samples: &[Sample], o: Vec3, f: impl Fn(Vec3, Vec3) -> f32) -> f
     (ss / samples.len().max(1) as f64).sqrt() as f32
 }
 
-/// Closed-form non-negative amplitudes `rho ~ kd bd + ks bs` (weights
-/// `cos^2`) for the three channels; returns `(kd, ks)`.
-fn solve_amplitudes(bd: &[f32], bs: &[f32], samples: &[Sample]) -> ([f32; 3], [f32; 3]) {
+/// Largest specular amplitude of a model whose `ks` is a reflectance:
+/// Cook-Torrance's and He's multiply the exact Fresnel reflectance, Ward's,
+/// the modified Phong's and Ashikhmin-Shirley's are the lobe's albedo or
+/// Fresnel reflectance, and above 1 a surface reflects more light than it
+/// receives. Without the bound, a lobe sharper than the lights' spacing
+/// was fitted as a narrower lobe with an amplitude of up to 7 (brushed
+/// metal's GGX fit, issue 16's note), which predicts the lights it saw
+/// and blazes at the peaks the rig never hit.
+pub const MAX_KS: f64 = 1.0;
+
+/// The bound on a model's specular amplitude given its shape. GGX and
+/// Beckmann carry the Fresnel term relative to normal incidence,
+/// `ks F(theta) / F(0)`, which grows toward grazing by up to `1 / F(0)`
+/// (25 at index 1.5): with `ks <= 1` they reflect up to 2.2 times the light
+/// they receive at a 60 degree view (a 0.05 x 0.3 lobe at 1.5, measured by
+/// `brdf`'s energy tests), and at a grazing view a sharp lobe approaches
+/// `ks / F(0)`. They conserve energy at every view for `ks <= F(0)`: the
+/// reflectance of a smooth interface of their index (0.04 at 1.5, 0.87 at
+/// 30, a metal's range). A bound from the albedo at views up to 85 degrees
+/// instead was tried: a sharp lobe reflected 3.3 times its light at 89.
+/// Lafortune's lobe is not normalised: its amplitude is free.
+fn max_ks(model: AnalyticModel, shape: &[f32]) -> f64 {
+    match model {
+        AnalyticModel::Lafortune => f64::INFINITY,
+        AnalyticModel::GgxAniso | AnalyticModel::BeckmannAniso => {
+            shape.get(3).map_or(MAX_KS, |&eta| brdf::fresnel::dielectric_f0(eta) as f64)
+        }
+        _ => MAX_KS,
+    }
+}
+
+/// Closed-form amplitudes `rho ~ kd bd + ks bs` (weights `cos^2`) per
+/// channel with `kd >= 0` and `0 <= ks <= max_ks`; returns `(kd, ks)`.
+fn solve_amplitudes(bd: &[f32], bs: &[f32], samples: &[Sample], max_ks: f64) -> ([f32; 3], [f32; 3]) {
     let (mut dd, mut ds, mut ss) = (0.0f64, 0.0f64, 0.0f64);
     let mut rd = [0.0f64; 3];
     let mut rs = [0.0f64; 3];
@@ -179,21 +201,29 @@ fn solve_amplitudes(bd: &[f32], bs: &[f32], samples: &[Sample]) -> ([f32; 3], [f
     let mut kd = [0.0f32; 3];
     let mut ks = [0.0f32; 3];
     for c in 0..3 {
-        let (mut a, mut b) = if det.abs() > crate::tol::SINGULAR_REL * (dd * ss).max(crate::tol::SINGULAR_ABS) {
-            ((rd[c] * ss - rs[c] * ds) / det, (rs[c] * dd - rd[c] * ds) / det)
-        } else {
-            (if dd > 0.0 { rd[c] / dd } else { 0.0 }, 0.0)
-        };
-        if a < 0.0 {
-            a = 0.0;
-            b = if ss > 0.0 { (rs[c] / ss).max(0.0) } else { 0.0 };
+        // The objective is convex: its minimum over the box is the free
+        // minimum when that lies inside, else the best of the minima along
+        // the edges.
+        let q = |a: f64, b: f64| a * a * dd + 2.0 * a * b * ds + b * b * ss - 2.0 * a * rd[c] - 2.0 * b * rs[c];
+        let along_b = |b: f64| if dd > 0.0 { ((rd[c] - b * ds) / dd).max(0.0) } else { 0.0 };
+        let along_a = |a: f64| if ss > 0.0 { ((rs[c] - a * ds) / ss).clamp(0.0, max_ks) } else { 0.0 };
+        let mut candidates = vec![(along_b(0.0), 0.0), (0.0, along_a(0.0))];
+        if max_ks.is_finite() {
+            candidates.push((along_b(max_ks), max_ks));
         }
-        if b < 0.0 {
-            b = 0.0;
-            a = if dd > 0.0 { (rd[c] / dd).max(0.0) } else { 0.0 };
+        if det.abs() > crate::tol::SINGULAR_REL * (dd * ss).max(crate::tol::SINGULAR_ABS) {
+            let (a, b) = ((rd[c] * ss - rs[c] * ds) / det, (rs[c] * dd - rd[c] * ds) / det);
+            if a >= 0.0 && (0.0..=max_ks).contains(&b) {
+                candidates = vec![(a, b)];
+            }
         }
-        kd[c] = if a.is_finite() { a as f32 } else { 0.0 };
-        ks[c] = if b.is_finite() { b as f32 } else { 0.0 };
+        let (a, b) = candidates
+            .into_iter()
+            .filter(|(a, b)| a.is_finite() && b.is_finite())
+            .min_by(|x, y| q(x.0, x.1).total_cmp(&q(y.0, y.1)))
+            .unwrap_or((0.0, 0.0));
+        kd[c] = a as f32;
+        ks[c] = b as f32;
     }
     (kd, ks)
 }
@@ -202,7 +232,13 @@ fn solve_amplitudes(bd: &[f32], bs: &[f32], samples: &[Sample]) -> ([f32; 3], [f
 /// diffuse or specular term is not linear in its amplitude (Ashikhmin-
 /// Shirley's `(1 - Rs)` factor and Schlick's Fresnel of `Rs`) are solved by
 /// a fixed-point iteration on the amplitude.
-fn point_amplitudes(model: AnalyticModel, shape: &[f32], samples: &[Sample], o: Vec3) -> (Vec<f32>, Option<f32>) {
+fn point_amplitudes(
+    model: AnalyticModel,
+    shape: &[f32],
+    max_ks: f64,
+    samples: &[Sample],
+    o: Vec3,
+) -> (Vec<f32>, Option<f32>) {
     let nonlinear = model == AnalyticModel::AshikhminShirley;
     let mut ks_prev = [0.05f32; 3];
     let mut kd = [0.0f32; 3];
@@ -231,7 +267,7 @@ fn point_amplitudes(model: AnalyticModel, shape: &[f32], samples: &[Sample], o: 
                 None => std::f32::consts::FRAC_1_PI,
             };
         }
-        (kd, ks) = solve_amplitudes(&bd, &bs, samples);
+        (kd, ks) = solve_amplitudes(&bd, &bs, samples, max_ks);
         ks_prev = ks;
     }
     let mut params = Vec::with_capacity(model.n_params());
@@ -261,6 +297,7 @@ struct ShapeProblem<'a> {
 impl ShapeProblem<'_> {
     fn residuals_at(&self, u: &DVector<f64>) -> DVector<f64> {
         let shape = shape::shape(self.model, u.as_slice());
+        let bound = max_ks(self.model, &shape);
         let mut r = Vec::with_capacity(self.n_res);
         let mut p = vec![0.0f32, 0.0, 0.0, 1.0, 1.0, 1.0];
         p.extend_from_slice(&shape);
@@ -268,7 +305,7 @@ impl ShapeProblem<'_> {
         for &(samples, o) in &self.points {
             if self.model == AnalyticModel::AshikhminShirley {
                 // Amplitudes by fixed-point iteration (see `point_amplitudes`).
-                let (params, _) = point_amplitudes(self.model, &shape, samples, o);
+                let (params, _) = point_amplitudes(self.model, &shape, bound, samples, o);
                 match self.model.build(&params) {
                     Some(m) => {
                         r.extend(samples.iter().map(|x| ((lum(m.eval(x.i, o).to_array()) - lum(x.rho)) * x.i.z) as f64))
@@ -278,7 +315,7 @@ impl ShapeProblem<'_> {
             } else if let Some(lm) = &linear {
                 let bs: Vec<f32> = samples.iter().map(|x| lm.eval(x.i, o).x).collect();
                 let bd = vec![std::f32::consts::FRAC_1_PI; samples.len()];
-                let (kd, ks) = solve_amplitudes(&bd, &bs, samples);
+                let (kd, ks) = solve_amplitudes(&bd, &bs, samples, bound);
                 let (kd, ks) = (lum(kd), lum(ks));
                 for (j, x) in samples.iter().enumerate() {
                     r.push(((kd * bd[j] + ks * bs[j] - lum(x.rho)) * x.i.z) as f64);
@@ -388,6 +425,7 @@ pub fn fit_model(model: AnalyticModel, maps: &PointMaps, ev: &Evidence) -> Model
             shape::shape(model, &u)
         })
         .collect();
+    let bounds: Vec<f64> = shapes.iter().map(|sh| max_ks(model, sh)).collect();
     let default_shape =
         shape::shape(model, &shape::init(model, &Moments { alpha_x: 0.3, alpha_y: 0.3, angle_rad: 0.0 }, eta));
     let fits: Vec<(Vec<f32>, Option<f32>)> = (0..n)
@@ -397,7 +435,7 @@ pub fn fit_model(model: AnalyticModel, maps: &PointMaps, ev: &Evidence) -> Model
             let samples =
                 if shape::expensive(model) { stride_sample(&ev.samples[p], 64) } else { ev.samples[p].clone() };
             if c < k {
-                point_amplitudes(model, &shapes[c], &samples, ev.view[p])
+                point_amplitudes(model, &shapes[c], bounds[c], &samples, ev.view[p])
             } else {
                 // No specular: the diffuse albedo alone.
                 let mut params = maps.kd[p].to_vec();
@@ -417,4 +455,50 @@ pub fn fit_model(model: AnalyticModel, maps: &PointMaps, ev: &Evidence) -> Model
         residual.push(r.filter(|r| r.is_finite()));
     }
     ModelFit { model, params, residual, seconds: t0.elapsed().as_secs_f64() }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Samples `rho = kd / pi + ks b_j` on a spread of specular basis
+    /// values, all channels alike.
+    fn samples(kd: f32, ks: f32) -> (Vec<f32>, Vec<f32>, Vec<Sample>) {
+        let bs: Vec<f32> = (0..40).map(|j| (j as f32 * 0.37).sin().abs() * 3.0).collect();
+        let bd = vec![std::f32::consts::FRAC_1_PI; bs.len()];
+        let s = bs
+            .iter()
+            .map(|&b| Sample { i: Vec3::Z, rho: [kd / std::f32::consts::PI + ks * b; 3], var: 1e-4, kernel_rad: 0.1 })
+            .collect();
+        (bd, bs, s)
+    }
+
+    #[test]
+    fn amplitudes_inside_the_physical_box_are_recovered_exactly() {
+        let (bd, bs, s) = samples(0.3, 0.6);
+        let (kd, ks) = solve_amplitudes(&bd, &bs, &s, MAX_KS);
+        assert!((kd[0] - 0.3).abs() < 1e-4 && (ks[1] - 0.6).abs() < 1e-5, "{kd:?} {ks:?}");
+    }
+
+    #[test]
+    fn a_specular_amplitude_above_one_is_held_at_one_and_the_diffuse_refitted() {
+        let (bd, bs, s) = samples(0.2, 3.0);
+        // An unnormalised lobe (Lafortune's) keeps its amplitude.
+        let (_, free) = solve_amplitudes(&bd, &bs, &s, max_ks(AnalyticModel::Lafortune, &[]));
+        assert!((free[0] - 3.0).abs() < 1e-4, "{free:?}");
+        let (kd, ks) = solve_amplitudes(&bd, &bs, &s, MAX_KS);
+        assert_eq!(ks, [MAX_KS as f32; 3]);
+        // With ks at 1 the diffuse term takes what it can of the rest: the
+        // least-squares kd for that ks, not the unconstrained 0.2.
+        let (mut num, mut den) = (0.0f64, 0.0f64);
+        for (j, x) in s.iter().enumerate() {
+            num += bd[j] as f64 * (x.rho[0] - bs[j]) as f64;
+            den += (bd[j] as f64).powi(2);
+        }
+        assert!((kd[0] as f64 - num / den).abs() < 1e-4, "{kd:?} against {}", num / den);
+        // Negative data give zero amplitudes, never negative ones.
+        let (bd, bs, s) = samples(-0.5, -0.1);
+        let (kd, ks) = solve_amplitudes(&bd, &bs, &s, MAX_KS);
+        assert_eq!((kd, ks), ([0.0; 3], [0.0; 3]));
+    }
 }

@@ -4,6 +4,8 @@
 use brdf::ndf::NdfTable;
 use brdf::params::AnalyticModel;
 
+use crate::partial::ETA_RANGE;
+
 /// The second moments of an NDF's slopes, as an anisotropic Beckmann lobe:
 /// `Sigma = integral D cos (s s^T) dw` with slopes `s = (hx/hz, hy/hz)`, and
 /// for Beckmann `E[s_x^2] = alpha_x^2 / 2` along the principal axes.
@@ -61,7 +63,7 @@ fn exponent(alpha: f32) -> f32 {
 /// Unconstrained starting vector `u` for a model.
 pub fn init(model: AnalyticModel, m: &Moments, eta: f32) -> Vec<f64> {
     let ln = |v: f32| (v.max(1e-6) as f64).ln();
-    let eta_u = ln((eta - 1.0).max(0.02));
+    let eta_u = ln((eta - ETA_RANGE.0).max(0.02));
     match model {
         AnalyticModel::Phong => vec![ln(exponent(m.alpha_iso()))],
         AnalyticModel::WardIso => vec![ln(m.alpha_iso())],
@@ -75,6 +77,7 @@ pub fn init(model: AnalyticModel, m: &Moments, eta: f32) -> Vec<f64> {
         AnalyticModel::CookTorrance => vec![ln(m.alpha_iso()), eta_u],
         AnalyticModel::AshikhminShirley => vec![ln(exponent(m.alpha_x)), ln(exponent(m.alpha_y)), m.angle_rad as f64],
         AnalyticModel::GgxAniso => vec![ln(m.alpha_x * 0.8), ln(m.alpha_y * 0.8), m.angle_rad as f64, eta_u],
+        AnalyticModel::BeckmannAniso => vec![ln(m.alpha_x), ln(m.alpha_y), m.angle_rad as f64, eta_u],
         // A Gaussian surface of RMS height sigma0 and autocorrelation length
         // tau has RMS slope sqrt(2) sigma0 / tau = alpha / sqrt(2).
         AnalyticModel::He => vec![ln(m.alpha_iso() * 3.0 / 2.0), ln(3.0), eta_u],
@@ -82,8 +85,10 @@ pub fn init(model: AnalyticModel, m: &Moments, eta: f32) -> Vec<f64> {
 }
 
 /// Physical shape parameters (the model's layout after kd and ks) from `u`.
+/// A Fresnel index is `ETA_RANGE.0 + exp(u)`, held below `ETA_RANGE.1`.
 pub fn shape(model: AnalyticModel, u: &[f64]) -> Vec<f32> {
     let e = |x: f64| x.clamp(-20.0, 20.0).exp() as f32;
+    let eta = |x: f64| (ETA_RANGE.0 + e(x)).min(ETA_RANGE.1);
     match model {
         AnalyticModel::Phong => vec![e(u[0])],
         AnalyticModel::WardIso => vec![e(u[0])],
@@ -98,10 +103,10 @@ pub fn shape(model: AnalyticModel, u: &[f64]) -> Vec<f32> {
             let s = |x: f64| (1.0 / (1.0 + (-x).exp())) as f32;
             vec![-s(u[0]), -s(u[1]), 1.0, e(u[2])]
         }
-        AnalyticModel::CookTorrance => vec![e(u[0]), 1.0 + e(u[1])],
+        AnalyticModel::CookTorrance => vec![e(u[0]), eta(u[1])],
         AnalyticModel::AshikhminShirley => vec![e(u[0]), e(u[1]), u[2] as f32],
-        AnalyticModel::GgxAniso => vec![e(u[0]), e(u[1]), u[2] as f32, 1.0 + e(u[3])],
-        AnalyticModel::He => vec![e(u[0]), e(u[1]), 1.0 + e(u[2])],
+        AnalyticModel::GgxAniso | AnalyticModel::BeckmannAniso => vec![e(u[0]), e(u[1]), u[2] as f32, eta(u[3])],
+        AnalyticModel::He => vec![e(u[0]), e(u[1]), eta(u[2])],
     }
 }
 
