@@ -93,7 +93,8 @@ pub const DEFAULT_ETA: f32 = 1.5;
 /// relative Fresnel term `F(theta) / F(0)` grows without bound as the
 /// index nears 1 (at 1.05, 1,700 times at grazing), so an index the rig's
 /// angles cannot pin down must not drift there: brushed metal's tables sat
-/// at the old bound of 1.05 and its GGX fit at 1.005 (issue 16's note).
+/// at the old bound of 1.05 (`refl inspect` of a fast capture before it
+/// moved).
 /// Above 30 the term is flat to within 1% at the rig's angles, as a
 /// metal's nearly is.
 pub const ETA_RANGE: (f32, f32) = (1.3, 30.0);

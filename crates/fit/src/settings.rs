@@ -84,18 +84,28 @@ impl FitSettings {
 
     /// Is light `q` of `plan` held out of the fit?
     pub fn holds_out(&self, plan: &setup::CapturePlan, q: usize) -> bool {
-        let step = (q / plan.leds.len().max(1)) as u32;
-        self.holdout_every.is_some_and(|k| k > 0 && step.is_multiple_of(k))
+        let step = step_of(plan, q);
+        self.evaluation_steps().is_some_and(|s| s.contains(step))
             || self.choice_holdout.is_some_and(|s| s.contains(step))
     }
 
     /// Is light `q` among the model choice's held-out lights (and not the
     /// evaluation's)?
     pub fn choice_holds_out(&self, plan: &setup::CapturePlan, q: usize) -> bool {
-        let step = (q / plan.leds.len().max(1)) as u32;
+        let step = step_of(plan, q);
         self.choice_holdout.is_some_and(|s| s.contains(step))
-            && !self.holdout_every.is_some_and(|k| k > 0 && step.is_multiple_of(k))
+            && !self.evaluation_steps().is_some_and(|s| s.contains(step))
     }
+
+    /// The evaluation's held-out steps (`holdout_every`, offset 0).
+    fn evaluation_steps(&self) -> Option<StepSet> {
+        self.holdout_every.map(|every| StepSet { every, offset: 0 })
+    }
+}
+
+/// The gantry step of light `q` (lights are numbered step by step).
+fn step_of(plan: &setup::CapturePlan, q: usize) -> u32 {
+    (q / plan.leds.len().max(1)) as u32
 }
 
 impl Default for FitSettings {

@@ -153,23 +153,20 @@ fn rms_residual(samples: &[Sample], o: Vec3, f: impl Fn(Vec3, Vec3) -> f32) -> f
 /// Cook-Torrance's and He's multiply the exact Fresnel reflectance, Ward's,
 /// the modified Phong's and Ashikhmin-Shirley's are the lobe's albedo or
 /// Fresnel reflectance, and above 1 a surface reflects more light than it
-/// receives. Without the bound, a lobe sharper than the lights' spacing
-/// was fitted as a narrower lobe with an amplitude of up to 7 (brushed
-/// metal's GGX fit, issue 16's note), which predicts the lights it saw
-/// and blazes at the peaks the rig never hit.
+/// receives. Without a bound, a lobe sharper than the lights' spacing can
+/// be fitted as a narrower lobe with a larger amplitude, which predicts
+/// the lights it saw and blazes at the peaks the rig never hit.
 pub const MAX_KS: f64 = 1.0;
 
 /// The bound on a model's specular amplitude given its shape. GGX and
 /// Beckmann carry the Fresnel term relative to normal incidence,
 /// `ks F(theta) / F(0)`, which grows toward grazing by up to `1 / F(0)`
-/// (25 at index 1.5): with `ks <= 1` they reflect up to 2.2 times the light
-/// they receive at a 60 degree view (a 0.05 x 0.3 lobe at 1.5, measured by
-/// `brdf`'s energy tests), and at a grazing view a sharp lobe approaches
-/// `ks / F(0)`. They conserve energy at every view for `ks <= F(0)`: the
-/// reflectance of a smooth interface of their index (0.04 at 1.5, 0.87 at
-/// 30, a metal's range). A bound from the albedo at views up to 85 degrees
-/// instead was tried: a sharp lobe reflected 3.3 times its light at 89.
-/// Lafortune's lobe is not normalised: its amplitude is free.
+/// (25 at index 1.5): with `ks = 1` they reflect more than twice the light
+/// they receive at a 60 degree view (`brdf`'s energy tests show it), and at
+/// a grazing view a sharp lobe approaches `ks / F(0)`. They conserve energy
+/// at every view for `ks <= F(0)`: the reflectance of a smooth interface of
+/// their index (0.04 at 1.5, 0.87 at 30, a metal's range). Lafortune's
+/// lobe is not normalised: its amplitude is free.
 fn max_ks(model: AnalyticModel, shape: &[f32]) -> f64 {
     match model {
         AnalyticModel::Lafortune => f64::INFINITY,
@@ -232,13 +229,7 @@ fn solve_amplitudes(bd: &[f32], bs: &[f32], samples: &[Sample], max_ks: f64) -> 
 /// diffuse or specular term is not linear in its amplitude (Ashikhmin-
 /// Shirley's `(1 - Rs)` factor and Schlick's Fresnel of `Rs`) are solved by
 /// a fixed-point iteration on the amplitude.
-fn point_amplitudes(
-    model: AnalyticModel,
-    shape: &[f32],
-    max_ks: f64,
-    samples: &[Sample],
-    o: Vec3,
-) -> (Vec<f32>, Option<f32>) {
+fn point_amplitudes(model: AnalyticModel, shape: &[f32], samples: &[Sample], o: Vec3) -> (Vec<f32>, Option<f32>) {
     let nonlinear = model == AnalyticModel::AshikhminShirley;
     let mut ks_prev = [0.05f32; 3];
     let mut kd = [0.0f32; 3];
@@ -267,7 +258,7 @@ fn point_amplitudes(
                 None => std::f32::consts::FRAC_1_PI,
             };
         }
-        (kd, ks) = solve_amplitudes(&bd, &bs, samples, max_ks);
+        (kd, ks) = solve_amplitudes(&bd, &bs, samples, max_ks(model, shape));
         ks_prev = ks;
     }
     let mut params = Vec::with_capacity(model.n_params());
@@ -305,7 +296,7 @@ impl ShapeProblem<'_> {
         for &(samples, o) in &self.points {
             if self.model == AnalyticModel::AshikhminShirley {
                 // Amplitudes by fixed-point iteration (see `point_amplitudes`).
-                let (params, _) = point_amplitudes(self.model, &shape, bound, samples, o);
+                let (params, _) = point_amplitudes(self.model, &shape, samples, o);
                 match self.model.build(&params) {
                     Some(m) => {
                         r.extend(samples.iter().map(|x| ((lum(m.eval(x.i, o).to_array()) - lum(x.rho)) * x.i.z) as f64))
@@ -425,7 +416,6 @@ pub fn fit_model(model: AnalyticModel, maps: &PointMaps, ev: &Evidence) -> Model
             shape::shape(model, &u)
         })
         .collect();
-    let bounds: Vec<f64> = shapes.iter().map(|sh| max_ks(model, sh)).collect();
     let default_shape =
         shape::shape(model, &shape::init(model, &Moments { alpha_x: 0.3, alpha_y: 0.3, angle_rad: 0.0 }, eta));
     let fits: Vec<(Vec<f32>, Option<f32>)> = (0..n)
@@ -435,7 +425,7 @@ pub fn fit_model(model: AnalyticModel, maps: &PointMaps, ev: &Evidence) -> Model
             let samples =
                 if shape::expensive(model) { stride_sample(&ev.samples[p], 64) } else { ev.samples[p].clone() };
             if c < k {
-                point_amplitudes(model, &shapes[c], bounds[c], &samples, ev.view[p])
+                point_amplitudes(model, &shapes[c], &samples, ev.view[p])
             } else {
                 // No specular: the diffuse albedo alone.
                 let mut params = maps.kd[p].to_vec();
