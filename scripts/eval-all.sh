@@ -4,8 +4,14 @@
 # `capture --sim-material`): one simulated capture each, then `refl eval
 # --json`. Prints one table row per sample and keeps each eval JSON.
 #
-#   bash scripts/eval-all.sh [--quality Q] [--bin DIR] [OUT]
+#   bash scripts/eval-all.sh [--quality Q] [--bin DIR] [--sim-rig RIG]
+#                            [--no-geometric-calibration] [OUT]
 #
+# --sim-rig picks the simulated physical rig (`ideal`, `perturbed:SEED`;
+# default the rig file's, see RIGFILE.md). --no-geometric-calibration
+# calibrates the rig with the dark and white scans only, so that every
+# capture trusts the rig file's camera (the figures "for scale" of an
+# uncalibrated rig).
 # --bin names the directory holding `capture` and `refl` (default: this
 # tree's release build, built first), so two builds can be compared on the
 # same inputs. Without ../shared/data/rgl the RGL rows are skipped, and the
@@ -14,21 +20,21 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 quality=fast
 bin=""
+rig=()
+no_geometry=0
 while [ $# -gt 0 ]; do
   case "$1" in
     --quality) quality="$2"; shift 2 ;;
     --bin) bin="$2"; shift 2 ;;
+    --sim-rig) rig=(--sim-rig "$2"); shift 2 ;;
+    --no-geometric-calibration) no_geometry=1; shift ;;
     *) break ;;
   esac
 done
 out="${1:-runs/eval-all-$quality}"
-if [ -z "$bin" ]; then
-  bash scripts/setup.sh
-  cargo build --release --quiet --bins
-  bin="$PWD/target/release"
-fi
-mkdir -p "$out"
-out="$(cd "$out" && pwd)"
+. scripts/common.sh
+release_bins
+out="$(absolute_dir "$out")"
 export REFLECTOMETER_DATA="$out/data" RUST_LOG=warn
 rgl_dir="../shared/data/rgl"
 
@@ -65,10 +71,14 @@ scan() { # name [capture args...]
   local name="$1"; shift
   local dir="$out/$name"
   rm -rf "$dir"
-  "$bin/capture" --quality "$quality" --no-daemon --out "$dir" "$@" >/dev/null 2>"$out/$name.log"
+  "$bin/capture" --quality "$quality" --no-daemon --out "$dir" "${rig[@]}" "$@" >/dev/null 2>"$out/$name.log"
   "$bin/refl" eval "$dir" --json --px 64 >"$dir/eval.json" 2>>"$out/$name.log"
   row "$name" "$dir"
 }
+
+if [ "$no_geometry" = 1 ]; then
+  "$bin/capture" --calibrate white --quality "$quality" --no-daemon "${rig[@]}" >/dev/null 2>"$out/calibrate.log"
+fi
 
 printf '%-24s %8s %8s %8s %8s %8s %18s %8s %8s %8s %8s %9s\n' sample ndf_obs shape ndf_full synth auto best_analytic best ho_synth ho_auto floor auto/best
 for s in $("$bin/capture" --list-samples | awk '{print $1}'); do

@@ -62,7 +62,12 @@ rigfile="$root/scripts/vm/vivid-rig.toml"
 rm -rf "$vm/vivid-calib"
 sed 's/^kind = "hardware"/kind = "sim"/' "$rigfile" >"$vm/vivid-sim.toml"
 "$root/target/debug/capture" --rig "$vm/vivid-sim.toml" --calib-dir "$vm/vivid-calib" --calibrate white \
-  >"$vm/vivid-calib.log" 2>&1 || { echo "vm-test: the simulated calibration failed:" >&2; tail -20 "$vm/vivid-calib.log" >&2; exit 1; }
+  --sim-rig ideal >"$vm/vivid-calib.log" 2>&1 \
+  || { echo "vm-test: the simulated calibration failed:" >&2; tail -20 "$vm/vivid-calib.log" >&2; exit 1; }
+# A simulated rig keeps its calibrations under its name and which simulated
+# rig it is; the hardware rig looks under its name alone.
+name=$(sed -n 's/^name *= *"\(.*\)"/\1/p' "$rigfile")
+mv "$vm/vivid-calib/$name-ideal" "$vm/vivid-calib/$name"
 
 # 3. The initramfs: busybox, the test binary, capture and refl and their
 #    libraries, the rig file and calibration, vivid and the modules it

@@ -17,7 +17,7 @@ fn white_scan_recovers_led_spread_profile_and_flat_field() {
     let sensor = SensorModel::default();
     let truth = LedTruth::realistic(40, 5);
     let cfg = SimCameraConfig {
-        geometry: geometry.clone(),
+        truth: sim::RigTruth::ideal(&geometry),
         sensor: sensor.clone(),
         leds: truth.clone(),
         timing: CameraTiming::Fast { time_scale: 0.0 },

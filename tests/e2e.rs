@@ -290,12 +290,13 @@ fn the_daemon_runs_one_capture_at_a_time_and_capture_uses_it() {
     assert!(!socket.exists());
 }
 
-/// `refl eval --json` of a default fast capture, as a map from model to
-/// its render error.
+/// `refl eval --json` of a default fast capture on the ideal simulated rig
+/// (the method's accuracy, apart from any rig's errors), as a map from
+/// model to its render error.
 fn eval_fast(lab: &Lab, sample: &str, holdout: bool) -> serde_json::Value {
     let o = lab
         .cmd(CAPTURE)
-        .args(["--sample", sample, "--quality", "fast", "--out"])
+        .args(["--sample", sample, "--quality", "fast", "--sim-rig", "ideal", "--out"])
         .arg(lab.path(sample))
         .output()
         .unwrap();
@@ -479,4 +480,43 @@ fn logs_to_a_pipe_are_plain_text_or_json() {
         let v: serde_json::Value = serde_json::from_str(line).unwrap_or_else(|e| panic!("{e}: {line}"));
         assert!(v["level"].is_string() && v["fields"]["message"].is_string(), "{line}");
     }
+}
+
+/// The whole path: `capture --calibrate geometry` on the default simulated
+/// rig (perturbed) through the real binary, the serial protocol and the
+/// pseudo-terminal, saves a camera that sees the sample where the rig
+/// truly does; a capture then records that camera (scaled to its preset's
+/// resolution) in capture.json, and warns of nothing.
+#[test]
+fn capture_calibrates_the_geometry_and_uses_it() {
+    let lab = Lab::new();
+    let o = lab.cmd(CAPTURE).args(["--calibrate", "geometry", "--json"]).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let dir = lab.path("data/calibration/sim-perturbed-1");
+    let files: Vec<_> = std::fs::read_dir(&dir).unwrap().flatten().map(|e| e.path()).collect();
+    assert_eq!(files.len(), 1, "{files:?}");
+    let cal: setup::Calibration = serde_json::from_slice(&std::fs::read(&files[0]).unwrap()).unwrap();
+    let c = cal.camera.expect("a geometric calibration");
+    assert!(c.rms_px < 0.3, "reprojection {} px", c.rms_px);
+    let filed = setup::RigGeometry::default();
+    let truth = sim::RigTruth::perturbed(&filed, 1);
+    let (to_rig, origin) = truth.sample_frame();
+    for p in [glam::Vec3::ZERO, glam::Vec3::new(40.0, -40.0, 0.0), glam::Vec3::new(-40.0, 40.0, 0.0)] {
+        let seen = truth.geometry.camera.project(to_rig * p + origin).unwrap();
+        let e = (c.camera.project(p).unwrap() - seen).length();
+        assert!(e < 0.3, "{p} is seen {e} px from where the calibration puts it");
+    }
+
+    let o = lab.capture("ward", "ward", &["--no-fit"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(!stderr.contains("no geometric calibration"), "{stderr}");
+    let info: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(lab.path("ward/capture.json")).unwrap()).unwrap();
+    let used: setup::CameraModel = serde_json::from_value(info["geometry"]["camera"].clone()).unwrap();
+    assert_eq!(used.width, 64, "the small capture's camera");
+    let scale = 64.0 / 256.0;
+    assert!((used.principal_offset_px - c.camera.principal_offset_px * scale).length() < 1e-4);
+    assert_eq!(used.position_mm, c.camera.position_mm);
+    assert_eq!(info["simulated"]["rig"], "perturbed:1");
 }

@@ -279,7 +279,7 @@ fn impossible_rigs_and_calibrations_are_refused() {
     assert_ok(&o, "the good rig");
 
     // A calibration whose LEDs gave no light is refused before capturing.
-    let cal_dir = lab.path("data/calibration/sim");
+    let cal_dir = lab.path("data/calibration/sim-perturbed-1");
     let newest = std::fs::read_dir(&cal_dir).unwrap().flatten().map(|e| e.path()).max().unwrap();
     let mut cal = json(&newest);
     for v in cal["led_scale"].as_array_mut().unwrap() {
@@ -362,7 +362,7 @@ fn data_and_runtime_directories_are_absolute_and_clean() {
         .output()
         .unwrap();
     assert_ok(&o, "capture without HOME");
-    assert!(lab.path("xdg/reflectometer/calibration/sim").is_dir(), "calibration kept under XDG_DATA_HOME");
+    assert!(lab.path("xdg/reflectometer/calibration/sim-perturbed-1").is_dir(), "calibration kept under XDG_DATA_HOME");
     assert_eq!(std::fs::read_dir(&work).unwrap().count(), 0, "nothing written relative to the working directory");
     assert!(std::fs::symlink_metadata(&stale).is_err(), "the stale link is removed");
     let info = json(&lab.path("xdg-capture/capture.json"));

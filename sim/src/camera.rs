@@ -9,13 +9,20 @@
 //! mid-exposure gives a mixed frame, as on a real sensor. Pixels whose view
 //! of the sample is blocked by the light bar see its black underside.
 //!
+//! The rig it renders is the hidden [`RigTruth`] (the rig file's geometry,
+//! perturbed or not), never the host's idea of it: pixels are traced
+//! through the true lens onto the true (possibly tilted) sample surface and
+//! lit by the LEDs where they truly are.
+//!
 //! Sensor model: electrons = sensitivity x radiance x exposure x vignetting
-//! x (1 + pixel response non-uniformity); shot noise (Poisson, as a Gaussian
-//! of variance equal to the mean above 30 electrons) and read noise;
-//! saturation at the full well; DN = electrons x gain / (electrons per DN)
-//! + black level, rounded and clipped to the bit depth. Noise is seeded by
-//! the physical shot (position, LED, exposure), so a resumed capture sees
-//! exactly the frames an uninterrupted one would.
+//! x (1 + pixel response non-uniformity) + dark current x exposure; shot
+//! noise (Poisson, as a Gaussian of variance equal to the mean above 30
+//! electrons) and read noise; saturation at the full well; DN = electrons x
+//! gain / (electrons per DN) plus the black level, rounded and clipped to
+//! the bit depth. A pixel integrates its footprint: a diffuse texture is
+//! averaged over it. Noise is seeded by the physical shot (position, LED,
+//! exposure), so a resumed capture sees exactly the frames an uninterrupted
+//! one would.
 //!
 //! Timing: in real time the camera free-runs at its frame rate and a
 //! request waits for the first frame exposed after the LED came on; in fast
@@ -35,10 +42,10 @@ use rand_pcg::Pcg64;
 use rayon::prelude::*;
 use rig::camera::{AppliedSettings, Camera, CameraError, CameraSettings, FrameFilter, Verdict};
 use rig::clock;
-use setup::RigGeometry;
 use tokio::time::Instant;
 
 use crate::faults::FaultSpec;
+use crate::truth::RigTruth;
 use crate::world::World;
 
 /// The simulated sensor.
@@ -113,7 +120,8 @@ pub enum CameraTiming {
 
 #[derive(Clone, Debug)]
 pub struct SimCameraConfig {
-    pub geometry: RigGeometry,
+    /// The rig as it physically is (its camera, LEDs, gantry and sample).
+    pub truth: RigTruth,
     pub sensor: SensorModel,
     pub leds: LedTruth,
     pub timing: CameraTiming,
@@ -125,10 +133,16 @@ pub struct SimCameraConfig {
 }
 
 struct Pixel {
+    /// Where the pixel's ray meets the sample surface (rig frame).
     p: Vec3,
+    /// Toward the camera, in the sample surface's own frame.
     o: Vec3,
     gain: f32,
     channel: u8,
+    /// Radiance from the room's ambient light.
+    ambient: f32,
+    /// Dark current, electrons per second.
+    dark_e_s: f32,
     brdf: Option<Arc<PointMaterial>>,
 }
 
@@ -161,29 +175,7 @@ impl std::fmt::Debug for SimCamera {
 impl SimCamera {
     /// Prepare the per-pixel geometry and BRDFs for `material`.
     pub fn new(cfg: SimCameraConfig, material: Arc<dyn SvBrdf>, world: World) -> Self {
-        let cam = cfg.geometry.camera;
-        let sample = cfg.geometry.sample;
-        let surround: Arc<PointMaterial> = Arc::new(PointMaterial::Diffuse { kd: Vec3::splat(SURROUND_ALBEDO) });
-        let mut resp_rng = Pcg64::seed_from_u64(cfg.seed ^ 0x9e1);
-        let prnu = Normal::new(1.0f32, cfg.sensor.prnu.max(0.0)).unwrap_or_else(|_| Normal::new(1.0, 0.0).unwrap());
-        let responses: Vec<f32> = (0..cam.width * cam.height).map(|_| prnu.sample(&mut resp_rng)).collect();
-        let pixels: Vec<Pixel> = (0..cam.width * cam.height)
-            .into_par_iter()
-            .map(|k| {
-                let (u, v) = (k % cam.width, k / cam.width);
-                let px = Vec2::new(u as f32 + 0.5, v as f32 + 0.5);
-                let channel = cfg.sensor.pattern.channel(u, v) as u8;
-                let gain = cam.vignetting(px) * responses[k as usize];
-                match cam.pixel_to_plane(px) {
-                    Some(q) => {
-                        let p = q.extend(0.0);
-                        let brdf = if sample.contains(q) { Arc::new(material.at(q)) } else { surround.clone() };
-                        Pixel { p, o: cam.view_dir(p), gain, channel, brdf: Some(brdf) }
-                    }
-                    None => Pixel { p: Vec3::ZERO, o: Vec3::Z, gain, channel, brdf: None },
-                }
-            })
-            .collect();
+        let pixels = Self::trace(&cfg, material);
         let fault_rng = Pcg64::seed_from_u64(cfg.faults.seed ^ 0xca3e);
         Self {
             exposure_us: 20_000,
@@ -203,6 +195,89 @@ impl SimCamera {
         }
     }
 
+    /// Put something else in the sample holder (the operator's hands): a
+    /// new material, propped up off the sample's surface or not.
+    pub fn restage(&mut self, material: Arc<dyn SvBrdf>, propped: Option<(glam::Mat3, Vec3)>) {
+        self.cfg.truth.propped = propped;
+        self.pixels = Arc::new(Self::trace(&self.cfg, material));
+    }
+
+    /// Each pixel's ray traced onto the surface in the holder.
+    fn trace(cfg: &SimCameraConfig, material: Arc<dyn SvBrdf>) -> Vec<Pixel> {
+        let truth = &cfg.truth;
+        let cam = truth.geometry.camera;
+        let sample = truth.geometry.sample;
+        let (to_rig, centre) = truth.sample_frame();
+        let to_sample = to_rig.transpose();
+        let normal = to_rig * Vec3::Z;
+        let dark = truth.dark_current_map(cfg.seed);
+        // Ambient light as a uniform sky: the radiance of a surface under
+        // it is `pi f(n, o) E` for a diffuse one; the BRDF at normal
+        // incidence stands in for its hemispherical mean.
+        let ambient_e = truth.ambient_irradiance * std::f32::consts::PI;
+        let surround: Arc<PointMaterial> = Arc::new(PointMaterial::Diffuse { kd: Vec3::splat(SURROUND_ALBEDO) });
+        let mut resp_rng = Pcg64::seed_from_u64(cfg.seed ^ 0x9e1);
+        let prnu = Normal::new(1.0f32, cfg.sensor.prnu.max(0.0)).unwrap_or_else(|_| Normal::new(1.0, 0.0).unwrap());
+        let responses: Vec<f32> = (0..cam.width * cam.height).map(|_| prnu.sample(&mut resp_rng)).collect();
+        (0..cam.width * cam.height)
+            .into_par_iter()
+            .map(|k| {
+                let (u, v) = (k % cam.width, k / cam.width);
+                let px = Vec2::new(u as f32 + 0.5, v as f32 + 0.5);
+                let channel = cfg.sensor.pattern.channel(u, v) as u8;
+                let gain = cam.vignetting(px) * responses[k as usize];
+                let dark_e_s = dark[k as usize];
+                match cam.pixel_to(px, centre, normal) {
+                    Some(p) => {
+                        let q = (to_sample * (p - centre)).truncate();
+                        let at = |q: Vec2| if sample.contains(q) { material.at(q) } else { (*surround).clone() };
+                        let brdf = Arc::new(match at(q) {
+                            // A pixel integrates its whole footprint: a
+                            // diffuse texture (a print, an edge) is averaged
+                            // over it. Glossy materials keep the centre's
+                            // BRDF (their lobes are not linear in anything
+                            // an average could keep).
+                            PointMaterial::Diffuse { kd } => {
+                                Self::footprint_kd(&cam, px, centre, normal, to_sample, &at)
+                                    .map_or(PointMaterial::Diffuse { kd }, |kd| PointMaterial::Diffuse { kd })
+                            }
+                            m => m,
+                        });
+                        let o = to_sample * cam.view_dir(p);
+                        let ambient = ambient_e * brdf.eval(Vec3::Z, o)[channel as usize];
+                        Pixel { p, o, gain, channel, ambient, dark_e_s, brdf: Some(brdf) }
+                    }
+                    None => Pixel { p: Vec3::ZERO, o: Vec3::Z, gain, channel, ambient: 0.0, dark_e_s, brdf: None },
+                }
+            })
+            .collect()
+    }
+
+    /// Mean albedo over the pixel at `px` (8 x 8 sub-pixel samples), if
+    /// every sample is diffuse.
+    fn footprint_kd(
+        cam: &setup::CameraModel,
+        px: Vec2,
+        centre: Vec3,
+        normal: Vec3,
+        to_sample: glam::Mat3,
+        at: &dyn Fn(Vec2) -> PointMaterial,
+    ) -> Option<Vec3> {
+        const N: u32 = 8;
+        let mut sum = Vec3::ZERO;
+        for s in 0..N {
+            for t in 0..N {
+                let d = Vec2::new((s as f32 + 0.5) / N as f32 - 0.5, (t as f32 + 0.5) / N as f32 - 0.5);
+                let p = cam.pixel_to(px + d, centre, normal)?;
+                match at((to_sample * (p - centre)).truncate()) {
+                    PointMaterial::Diffuse { kd } => sum += kd,
+                    _ => return None,
+                }
+            }
+        }
+        Some(sum / (N * N) as f32)
+    }
+
     fn scale(&self) -> f32 {
         match self.cfg.timing {
             CameraTiming::Fast { time_scale } => time_scale,
@@ -214,7 +289,7 @@ impl SimCamera {
     /// computed for the nominal exposure, from the LEDs the world says were
     /// lit then.
     fn render(&mut self, t0: Instant, t1: Instant, sequence: u64) -> Frame {
-        let g = &self.cfg.geometry;
+        let truth = &self.cfg.truth;
         let span = (t1 - t0).as_secs_f64();
         let mut lights = Vec::new();
         let intervals = if span > 0.0 {
@@ -226,8 +301,9 @@ impl SimCamera {
         for (led, current, s, e) in intervals {
             let frac = if span > 0.0 { ((e - s).as_secs_f64() / span) as f32 } else { 1.0 };
             let mid = s + (e - s) / 2;
-            let bar_x_mm = (self.world.position_at(mid, self.cfg.rest_um) / 1000.0) as f32;
-            lights.push((g.bar.led_position(bar_x_mm, led), bar_x_mm, self.led_intensity(led, current) * frac));
+            let commanded_mm = (self.world.position_at(mid, self.cfg.rest_um) / 1000.0) as f32;
+            let bar_x_mm = truth.bar_x_mm(commanded_mm, self.world.forward_at(mid));
+            lights.push((truth.led_position(bar_x_mm, led), bar_x_mm, self.led_intensity(led, current) * frac));
         }
         let bar_um = self.world.position_at(t0, self.cfg.rest_um).round() as i64;
         let key = self.noise_key(bar_um, self.world.led_at(t0).map(|l| l.0));
@@ -238,12 +314,13 @@ impl SimCamera {
     /// (or none: a dark frame) lit at its nominal current, without a world
     /// timeline or an MCU. The noise is the same as the full path gives for
     /// the same shot, so direct and rig-driven captures agree.
+    /// The carriage is taken to have arrived moving toward `+x`.
     pub fn render_direct(&mut self, position_um: i32, led: Option<u8>) -> Frame {
-        let g = &self.cfg.geometry;
-        let bar_x_mm = position_um as f32 / 1000.0;
+        let truth = &self.cfg.truth;
+        let bar_x_mm = truth.bar_x_mm(position_um as f32 / 1000.0, true);
         let lights: Vec<_> = led
             .map(|l| {
-                (g.bar.led_position(bar_x_mm, l), bar_x_mm, self.led_intensity(l, self.cfg.leds.nominal_current_ma))
+                (truth.led_position(bar_x_mm, l), bar_x_mm, self.led_intensity(l, self.cfg.leds.nominal_current_ma))
             })
             .into_iter()
             .collect();
@@ -284,7 +361,9 @@ impl SimCamera {
         t1: Instant,
         sequence: u64,
     ) -> Frame {
-        let g = &self.cfg.geometry;
+        let g = &self.cfg.truth.geometry;
+        let (to_rig, _) = self.cfg.truth.sample_frame();
+        let to_sample = to_rig.transpose();
         let seed = self.cfg.seed
             ^ key.wrapping_mul(0x9E37_79B9_7F4A_7C15)
             ^ ((self.exposure_us as u64) << 20)
@@ -306,7 +385,7 @@ impl SimCamera {
             let read_sd = if sensor.read_noise_e.is_finite() { sensor.read_noise_e.max(0.0) } else { 0.0 };
             for (col, dn) in out.iter_mut().enumerate() {
                 let px = &pixels[row * w + col];
-                let mut radiance = 0.0f32;
+                let mut radiance = px.ambient;
                 if let Some(b) = &px.brdf {
                     for &(led_pos, bar_x, intensity) in lights {
                         if intensity <= 0.0 || bar.occludes(bar_x, px.p, eye, 0.0) {
@@ -315,15 +394,16 @@ impl SimCamera {
                         let d = led_pos - px.p;
                         let r2 = d.length_squared();
                         let i = d / r2.sqrt();
-                        if i.z <= 0.0 {
+                        let i_local = to_sample * i;
+                        if i.z <= 0.0 || i_local.z <= 0.0 {
                             continue;
                         }
                         let cos_emit = i.z; // LED axis points straight down
-                        let irradiance = intensity * cos_emit.powf(profile) * i.z / r2;
-                        radiance += b.eval(i, px.o)[px.channel as usize] * irradiance;
+                        let irradiance = intensity * cos_emit.powf(profile) * i_local.z / r2;
+                        radiance += b.eval(i_local, px.o)[px.channel as usize] * irradiance;
                     }
                 }
-                let mean_e = (sensor.sensitivity * radiance * exposure_s * px.gain).max(0.0);
+                let mean_e = (sensor.sensitivity * radiance * exposure_s * px.gain).max(0.0) + px.dark_e_s * exposure_s;
                 let shot = if mean_e > 30.0 {
                     mean_e + mean_e.sqrt() * rng.sample::<f32, _>(rand_distr::StandardNormal)
                 } else {
@@ -364,7 +444,7 @@ impl Camera for SimCamera {
     }
 
     async fn configure(&mut self, s: &CameraSettings) -> Result<AppliedSettings, CameraError> {
-        let cam = &self.cfg.geometry.camera;
+        let cam = &self.cfg.truth.geometry.camera;
         if s.width != cam.width || s.height != cam.height {
             return Err(CameraError::Unsupported(format!(
                 "the simulated sensor is {}x{}, not {}x{}",

@@ -277,6 +277,22 @@ pub struct White;
 /// Albedo of the simulated white reference.
 pub const WHITE_ALBEDO: f32 = 0.95;
 
+/// The printed checkerboard of the geometric calibration (matte paper and
+/// toner), laid on the sample holder. Not a sample: not in [`BUILTIN`].
+#[derive(Clone, Copy, Debug)]
+pub struct Target(pub setup::CheckerTarget);
+
+impl SvBrdf for Target {
+    fn name(&self) -> &str {
+        "checkerboard target"
+    }
+
+    fn at(&self, p: Vec2) -> PointMaterial {
+        let albedo = if self.0.is_dark(p) { 0.04 } else { 0.8 };
+        PointMaterial::Diffuse { kd: Vec3::splat(albedo) }
+    }
+}
+
 impl SvBrdf for White {
     fn name(&self) -> &str {
         "white"

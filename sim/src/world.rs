@@ -124,6 +124,20 @@ impl World {
         position_in(&self.lock(), t, rest_um)
     }
 
+    /// Whether the carriage's last move that started by `t` went toward
+    /// `+x` (true before any move: homing approaches from `-x`).
+    pub fn forward_at(&self, t: Instant) -> bool {
+        self.lock()
+            .iter()
+            .take_while(|e| e.t <= t)
+            .filter_map(|e| match e.effect {
+                Effect::MoveStart { from_um, to_um, .. } if to_um != from_um => Some(to_um > from_um),
+                _ => None,
+            })
+            .last()
+            .unwrap_or(true)
+    }
+
     /// The LED lit at `t` (with its current), if any.
     pub fn led_at(&self, t: Instant) -> Option<(u8, u16)> {
         led_in(&self.lock(), t)

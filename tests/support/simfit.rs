@@ -41,7 +41,7 @@ pub fn run(s: &Scenario, settings: FitSettings) -> Fitted {
     let sensor = SensorModel::default();
     let leds = LedTruth { scale: vec![1.0; 40], profile_exponent: 1.0, nominal_current_ma: 200 };
     let cfg = SimCameraConfig {
-        geometry: geometry.clone(),
+        truth: sim::RigTruth::ideal(&geometry),
         sensor: sensor.clone(),
         leds,
         timing: CameraTiming::Fast { time_scale: 0.0 },

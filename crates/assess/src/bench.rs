@@ -257,7 +257,7 @@ pub fn camera(sample: &str, px: u32, frames: u32) -> Result<f64> {
     g.camera.width = px;
     g.camera.height = px;
     let cfg = SimCameraConfig {
-        geometry: g.clone(),
+        truth: sim::RigTruth::ideal(&g),
         sensor: SensorModel::default(),
         leds: LedTruth::realistic(g.bar.n_leds, 1),
         timing: CameraTiming::Fast { time_scale: 0.0 },

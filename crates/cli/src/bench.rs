@@ -28,9 +28,9 @@ pub async fn realtime(sample: &str, steps: u32, led_stride: u8, fps: f32) -> Res
     let g = crate::capture::geometry_for(&rf, &q);
     // Calibrate at simulation speed first (a real-time one would take minutes).
     let calib = dir.join("calibration");
-    let store = store::CalibrationStore::new(&calib, &rf.name);
+    let store = store::CalibrationStore::new(&calib, &rf.calibration_key());
     let mut quiet = Reporter::new(Mode::Silent);
-    crate::capture::calibrate(&rf, &g, &store, &mut quiet, true).await?;
+    crate::capture::calibrate(&rf, &g, &store, &mut quiet, crate::capture::Scan::All).await?;
     rf.sim.realtime = true;
     rf.sim.fps = fps;
     let rig_path = dir.join("rig.toml");

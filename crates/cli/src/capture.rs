@@ -55,6 +55,10 @@ pub struct CaptureRequest {
     pub sim_material: Option<PathBuf>,
     #[serde(default)]
     pub sim_faults: String,
+    /// Simulated rig: which physical rig (`ideal`, `perturbed:SEED`) in
+    /// place of the rig file's `[sim] rig`.
+    #[serde(default)]
+    pub sim_rig: Option<String>,
     pub calib_dir: Option<PathBuf>,
     /// Capture only, no fit.
     #[serde(default)]
@@ -99,6 +103,9 @@ pub fn geometry_for(rf: &RigFile, q: &Quality) -> RigGeometry {
     g
 }
 
+/// A geometric calibration older than this is reported at every capture.
+const GEOMETRY_MAX_AGE_DAYS: i64 = 90;
+
 /// Find the calibration to use; on the simulated rig, make one if missing.
 async fn calibration_for(
     rf: &RigFile,
@@ -106,8 +113,31 @@ async fn calibration_for(
     store: &CalibrationStore,
     rep: &mut Reporter,
 ) -> Result<(Calibration, String)> {
-    if let Some((path, c)) = store.newest()? {
-        if c.led_scale.len() == geometry.bar.n_leds as usize && !c.flat_field.is_empty() {
+    let newest = store.newest()?;
+    let measured_camera = newest.as_ref().is_some_and(|(_, c)| c.camera.is_some());
+    if let Some((path, c)) = newest {
+        let usable = c.led_scale.len() == geometry.bar.n_leds as usize && !c.flat_field.is_empty();
+        // A rig may run without a geometric calibration (the rig file's
+        // camera), with a warning; the simulated rig makes one only when it
+        // has no calibration at all.
+        if usable {
+            match &c.camera {
+                None => rep.warn(
+                    "this rig has no geometric calibration: the camera's pose and lens are taken from the rig file \
+                     (run `capture --calibrate geometry`, then `capture --calibrate white`; see CALIBRATION.md)",
+                ),
+                Some(g) => {
+                    let now = crate::paths::stamp_days(&crate::paths::utc_stamp());
+                    let age = now.zip(crate::paths::stamp_days(&g.id)).map(|(n, t)| n - t);
+                    if age.is_some_and(|a| a > GEOMETRY_MAX_AGE_DAYS) {
+                        rep.warn(format!(
+                            "the geometric calibration is {} days old: a knocked camera or bar moves the rig's \
+                             geometry; run `capture --calibrate geometry` and `capture --calibrate white` again",
+                            age.unwrap_or_default()
+                        ));
+                    }
+                }
+            }
             c.validate().map_err(|e| {
                 crate::usage(anyhow!(
                     "{}: {e}; run `capture --calibrate dark` and `capture --calibrate white` again",
@@ -125,50 +155,130 @@ async fn calibration_for(
             store.dir().display()
         );
     }
-    rep.stage("calibrate", "no calibration of the simulated rig yet: running the dark and white scans first");
-    let c = calibrate(rf, geometry, store, rep, true).await?;
+    let scan = if measured_camera { Scan::White } else { Scan::All };
+    rep.stage(
+        "calibrate",
+        match scan {
+            Scan::White => {
+                "no radiometric calibration of the simulated rig yet: running the dark and white scans first"
+            }
+            _ => "no calibration of the simulated rig yet: running the geometric, dark and white scans first",
+        },
+    );
+    let c = calibrate(rf, geometry, store, rep, scan).await?;
     let path = store.dir().join(format!("{}.json", c.id));
     Ok((c, path.display().to_string()))
 }
 
-/// Run the dark scan and (if `white`) the white scan and store the result.
-/// On the simulated rig the white reference is put in place for the scan;
-/// on hardware the operator has placed it (or the lens cap, for `dark`).
+/// Open the rig for a calibration scan; on the simulated rig with the
+/// built-in `material` in the holder.
+async fn open_for_scan(rf: &RigFile, geometry: &RigGeometry, material: &str) -> Result<session::Session> {
+    Ok(match rf.kind {
+        RigKind::Sim => session::open_sim(rf, geometry, sim_material(material, None)?, &FaultSpec::none()).await?,
+        RigKind::Hardware => session::open_hardware(rf, geometry).await?,
+    })
+}
+
+/// Which calibration scans to run.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Scan {
+    /// Lens capped: black level and read noise.
+    Dark,
+    /// Dark, then the white reference: LED intensities, emission profile,
+    /// flat field.
+    White,
+    /// The checkerboard target: the camera's intrinsics and pose.
+    Geometry,
+    /// Geometry, dark and white, in that order (the white scan's flat
+    /// field is mapped with the measured camera).
+    All,
+}
+
+impl std::str::FromStr for Scan {
+    type Err = anyhow::Error;
+
+    fn from_str(s: &str) -> Result<Self> {
+        Ok(match s {
+            "dark" => Scan::Dark,
+            "white" => Scan::White,
+            "geometry" => Scan::Geometry,
+            "all" => Scan::All,
+            o => bail!("unknown calibration '{o}': dark, white, geometry or all"),
+        })
+    }
+}
+
+/// Run the scans `scan` asks for, each building on the newest stored
+/// calibration, and store the result. `geometry` is the rig file's. On
+/// the simulated rig the target or the white reference is put in place for
+/// each scan; on hardware the operator places them (or the lens cap).
 pub async fn calibrate(
     rf: &RigFile,
     geometry: &RigGeometry,
     store: &CalibrationStore,
     rep: &mut Reporter,
-    white: bool,
+    scan: Scan,
 ) -> Result<Calibration> {
-    let mut s = match rf.kind {
-        RigKind::Sim => session::open_sim(rf, geometry, sim_material("white", None)?, &FaultSpec::none()).await?,
-        RigKind::Hardware => session::open_hardware(rf, geometry).await?,
-    };
-    let cs = camera_settings(geometry, 20_000, 1.0, s.fps);
-    let base = match store.newest()? {
+    let mut c = match store.newest()? {
         Some((_, c)) if c.led_scale.len() == geometry.bar.n_leds as usize => c,
         _ => Calibration::nominal(geometry.bar.n_leds, 1.0, 0.0),
     };
-    let result = async {
-        s.rig.home().await?;
-        let dark = calib::dark(&mut s.rig, &mut s.camera, base, &cs, rep).await?;
-        let c = if white {
-            calib::white(&mut s.rig, &mut s.camera, geometry, dark, rf.white_reference_albedo, &cs, s.e_per_dn, rep)
-                .await?
-        } else {
-            dark
-        };
-        anyhow::Ok(c)
+    if matches!(scan, Scan::Geometry | Scan::All) {
+        // At the camera's own resolution, the rig file's (the simulated
+        // rig's presets read it coarser; `Calibration::geometry_of` scales
+        // the result to them).
+        let full = rf.geometry();
+        let mut s = open_for_scan(rf, &full, "white").await?;
+        let cs = camera_settings(&full, 20_000, 1.0, s.fps);
+        let result = async {
+            s.rig.home().await?;
+            calib::geometry(&mut s.rig, &mut s.camera, &full, c.clone(), &cs, rep).await
+        }
+        .await;
+        s.close().await;
+        c = result?;
+        if scan == Scan::Geometry && !c.flat_field.is_empty() {
+            rep.warn("the white calibration was mapped with the old camera: run `capture --calibrate white` again");
+        }
     }
-    .await;
-    s.close().await;
+    let result = if scan == Scan::Geometry {
+        Ok(c)
+    } else {
+        let mut s = open_for_scan(rf, geometry, "white").await?;
+        let cs = camera_settings(geometry, 20_000, 1.0, s.fps);
+        let result = async {
+            s.rig.home().await?;
+            let mut c = calib::dark(&mut s.rig, &mut s.camera, c, &cs, rep).await?;
+            if matches!(scan, Scan::White | Scan::All) {
+                let measured = c.geometry_of(geometry);
+                c = calib::white(
+                    &mut s.rig,
+                    &mut s.camera,
+                    &measured,
+                    c,
+                    rf.white_reference_albedo,
+                    &cs,
+                    s.e_per_dn,
+                    rep,
+                )
+                .await?;
+            }
+            anyhow::Ok(c)
+        }
+        .await;
+        s.close().await;
+        result
+    };
     let c = result?;
     c.validate().map_err(|e| {
         anyhow!(
             "the scan gave a calibration that cannot be used ({e}); nothing was saved: check that every LED lights \
              and that the {} is in place",
-            if white { "white reference" } else { "lens cap" }
+            match scan {
+                Scan::Dark => "lens cap",
+                Scan::Geometry => "target",
+                Scan::White | Scan::All => "white reference",
+            }
         )
     })?;
     let path = store.save(&c)?;
@@ -309,7 +419,10 @@ pub struct Summary {
 /// frames (e-stop, everything stored kept), the fit and the renders.
 pub async fn run(req: CaptureRequest, rep: &mut Reporter, cancel: watch::Receiver<bool>) -> Result<Summary> {
     let started = Instant::now();
-    let (rf, rig_source) = RigFile::load(req.rig_file.as_deref())?;
+    let (mut rf, rig_source) = RigFile::load(req.rig_file.as_deref())?;
+    if let Some(r) = &req.sim_rig {
+        rf.sim.rig = r.parse().map_err(|e| crate::usage(anyhow!("--sim-rig: {e}")))?;
+    }
     let faults = FaultSpec::parse(&req.sim_faults).map_err(|e| crate::usage(anyhow!("--sim-faults: {e}")))?;
     let resume = req.resume.is_some();
     // Everything about the capture comes from the request, or from
@@ -325,6 +438,10 @@ pub async fn run(req: CaptureRequest, rep: &mut Reporter, cancel: watch::Receive
         let q: Quality = serde_json::from_value(cd.info().settings.clone())
             .with_context(|| format!("{}: capture.json does not record its quality settings", dir.display()))?;
         let info = cd.info().clone();
+        if let Some(s) = &info.simulated {
+            // The same physical rig as the frames already taken.
+            rf.sim.rig = s.rig.parse().map_err(|e| anyhow!("{}: {e}", CaptureDir::INFO))?;
+        }
         let done: HashSet<u32> = state.done_shots;
         rep.stage("resume", format!("{} of {} shots already stored and verified", done.len(), info.plan.shots().len()));
         (Some(cd), info, q, done)
@@ -358,21 +475,30 @@ pub async fn run(req: CaptureRequest, rep: &mut Reporter, cancel: watch::Receive
                 material_dir: req.sim_material.as_ref().map(|p| p.display().to_string()),
                 faults: req.sim_faults.clone(),
                 seed: rf.sim.seed,
+                rig: rf.sim.rig.to_string(),
             }),
         };
         let _ = out;
         (None, info, q, HashSet::new())
     };
-    let geometry = info.geometry.clone();
-    let cal_store = crate::paths::calibrations(req.calib_dir.as_deref(), &rf.name)?;
+    // The rig file's geometry (what the simulated rig is built to) and the
+    // geometry the fit uses: the file's with the calibrated camera, as
+    // capture.json records it.
+    let filed = geometry_for(&rf, &q);
+    let cal_store = crate::paths::calibrations(req.calib_dir.as_deref(), &rf.calibration_key())?;
     let (calibration, cal_source) = if resume {
         info.calibration.validate().map_err(|e| {
             crate::usage(anyhow!("{}: the calibration it records is not usable: {e}", CaptureDir::INFO))
         })?;
         (info.calibration.clone(), info.calibration_source.clone().unwrap_or_default())
     } else {
-        calibration_for(&rf, &geometry, &cal_store, rep).await?
+        calibration_for(&rf, &info.geometry, &cal_store, rep).await?
     };
+    let mut info = info;
+    if !resume {
+        info.geometry = calibration.geometry_of(&info.geometry);
+    }
+    let geometry = info.geometry.clone();
     let sample = info.sample.clone();
     let faults = if resume {
         FaultSpec::parse(info.simulated.as_ref().map_or("", |s| s.faults.as_str())).unwrap_or(faults)
@@ -381,7 +507,7 @@ pub async fn run(req: CaptureRequest, rep: &mut Reporter, cancel: watch::Receive
     };
     rep.stage("rig", format!("{} ({rig_source}); sample '{sample}', quality {}", rf.name, q.name));
     let mut s = match (rf.kind, ground_truth(&info)?) {
-        (RigKind::Sim, Some(material)) => session::open_sim(&rf, &geometry, material, &faults).await?,
+        (RigKind::Sim, Some(material)) => session::open_sim(&rf, &filed, material, &faults).await?,
         (RigKind::Hardware, None) => session::open_hardware(&rf, &geometry).await?,
         (RigKind::Sim, None) => {
             bail!("this capture was made on hardware; resume it with the same hardware rig (--rig)")
@@ -390,7 +516,6 @@ pub async fn run(req: CaptureRequest, rep: &mut Reporter, cancel: watch::Receive
             bail!("this capture was made on the simulated rig; resume it without a hardware --rig")
         }
     };
-    let mut info = info;
     info.calibration = calibration.clone();
     info.calibration_source = Some(cal_source.clone());
     let cs = camera_settings(&geometry, info.plan.exposures_us[0], info.plan.gain, s.fps);

@@ -72,6 +72,23 @@ pub fn utc_stamp() -> String {
     stamp_from_unix(secs)
 }
 
+/// Days since the Unix epoch of a stamp's date (`YYYYMMDD...`), by
+/// Howard Hinnant's days-from-civil; `None` if it does not start with a
+/// date.
+pub fn stamp_days(stamp: &str) -> Option<i64> {
+    let num = |r: std::ops::Range<usize>| stamp.get(r).and_then(|t| t.parse::<i64>().ok());
+    let (y, m, d) = (num(0..4)?, num(4..6)?, num(6..8)?);
+    if !(1..=12).contains(&m) || !(1..=31).contains(&d) {
+        return None;
+    }
+    let y = if m <= 2 { y - 1 } else { y };
+    let era = y.div_euclid(400);
+    let yoe = y - era * 400;
+    let doy = (153 * (if m > 2 { m - 3 } else { m + 9 }) + 2) / 5 + d - 1;
+    let doe = yoe * 365 + yoe / 4 - yoe / 100 + doy;
+    Some(era * 146_097 + doe - 719_468)
+}
+
 /// Civil date from a Unix time (Howard Hinnant's days-from-civil inverse).
 pub fn stamp_from_unix(secs: u64) -> String {
     let days = (secs / 86_400) as i64;
@@ -96,5 +113,20 @@ mod tests {
         assert_eq!(super::stamp_from_unix(0), "19700101T000000Z");
         assert_eq!(super::stamp_from_unix(1_795_305_600), "20261122T000000Z");
         assert_eq!(super::stamp_from_unix(951_782_400 + 3661), "20000229T010101Z");
+    }
+}
+
+#[cfg(test)]
+mod stamp_tests {
+    use super::*;
+
+    #[test]
+    fn stamp_days_inverts_stamp_from_unix() {
+        for days in [0u64, 59, 60, 365, 10_957, 20_787, 21_000] {
+            let stamp = stamp_from_unix(days * 86_400 + 3_723);
+            assert_eq!(stamp_days(&stamp), Some(days as i64), "{stamp}");
+        }
+        assert_eq!(stamp_days("nominal"), None);
+        assert_eq!(stamp_days("20261399T000000Z"), None);
     }
 }

@@ -12,7 +12,7 @@ use rig::camera::{AppliedSettings, Camera, CameraError, CameraSettings};
 use rig::mcu::{PortLocator, Rig, RigSettings, SerialConnector};
 use setup::RigGeometry;
 use sim::camera::{CameraTiming, LedTruth, SensorModel, SimCamera, SimCameraConfig};
-use sim::{FaultSpec, McuConfig, SimMcu, World};
+use sim::{FaultSpec, McuConfig, RigTruth, SimMcu, World};
 
 use crate::paths;
 use crate::progress::Reporter;
@@ -144,8 +144,16 @@ pub async fn open_sim(
     } else {
         CameraTiming::Fast { time_scale: 0.0 }
     };
+    let truth = match rf.sim.rig {
+        config::SimRig::Ideal => RigTruth::ideal(geometry),
+        config::SimRig::Perturbed { seed, .. } => {
+            let p = |part: &str| rf.sim.rig.perturbs(part);
+            let tol = sim::Tolerances::default().keeping(p("camera"), p("leds"), p("gantry"), p("sample"), p("sensor"));
+            RigTruth::drawn(geometry, &tol, seed)
+        }
+    };
     let cfg = SimCameraConfig {
-        geometry: geometry.clone(),
+        truth,
         sensor,
         leds: LedTruth::realistic(geometry.bar.n_leds, rf.sim.seed),
         timing,

@@ -7,7 +7,7 @@ pub mod presets;
 pub mod rigfile;
 
 pub use presets::{Overrides, PRESETS, Quality, preset};
-pub use rigfile::{RigFile, RigKind};
+pub use rigfile::{RIG_PARTS, RigFile, RigKind, SimRig};
 
 /// A configuration the operator must correct; the message names the file
 /// or flag and what it may be.

@@ -63,10 +63,113 @@ fn default_fps() -> f32 {
     30.0
 }
 
+/// The parts of the simulated rig a perturbation can touch, by name (bit
+/// `k` of [`SimRig::Perturbed`]'s `parts` is `RIG_PARTS[k]`): the camera
+/// (pose and lens), the LEDs (positions, bar height and tilt), the gantry
+/// (offset, scale, backlash), the sample's height and tilt, and the sensor
+/// and room (dark current, hot pixels, ambient light).
+pub const RIG_PARTS: [&str; 5] = ["camera", "leds", "gantry", "sample", "sensor"];
+
+/// Every part perturbed.
+pub const ALL_PARTS: u8 = (1 << RIG_PARTS.len()) - 1;
+
+/// Which physical rig the simulator renders: the rig file exactly, or one
+/// that departs from it within a bench's tolerances, drawn from a seed
+/// (`sim::RigTruth`). Written `"ideal"`, `"perturbed:SEED"`, or
+/// `"perturbed:SEED:PART+PART"` for a rig whose other parts are exactly as
+/// filed (the same draw, with the other errors left out: what each part's
+/// errors cost a fit).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(try_from = "String", into = "String")]
+pub enum SimRig {
+    Ideal,
+    Perturbed { seed: u64, parts: u8 },
+}
+
+impl Default for SimRig {
+    fn default() -> Self {
+        SimRig::Perturbed { seed: 1, parts: ALL_PARTS }
+    }
+}
+
+impl SimRig {
+    /// Whether the rig's part named `part` (one of [`RIG_PARTS`]) departs
+    /// from the rig file.
+    pub fn perturbs(&self, part: &str) -> bool {
+        match self {
+            SimRig::Ideal => false,
+            SimRig::Perturbed { parts, .. } => {
+                RIG_PARTS.iter().position(|p| *p == part).is_some_and(|k| parts >> k & 1 == 1)
+            }
+        }
+    }
+}
+
+impl std::str::FromStr for SimRig {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, String> {
+        let bad = || {
+            format!(
+                "'{s}' is not a simulated rig: use 'ideal', 'perturbed:SEED' (e.g. perturbed:1) or \
+                 'perturbed:SEED:PART+PART' with parts among {}",
+                RIG_PARTS.join(", ")
+            )
+        };
+        let mut it = s.split(':');
+        match (it.next(), it.next(), it.next(), it.next()) {
+            (Some("ideal"), None, ..) => Ok(SimRig::Ideal),
+            (Some("perturbed"), None, ..) => Ok(SimRig::default()),
+            (Some("perturbed"), Some(seed), parts, None) => {
+                let seed = seed.parse().map_err(|_| bad())?;
+                let parts = match parts {
+                    None => ALL_PARTS,
+                    Some(list) => list.split('+').try_fold(0u8, |acc, name| {
+                        RIG_PARTS.iter().position(|p| *p == name).map(|k| acc | 1 << k).ok_or_else(bad)
+                    })?,
+                };
+                Ok(SimRig::Perturbed { seed, parts })
+            }
+            _ => Err(bad()),
+        }
+    }
+}
+
+impl std::fmt::Display for SimRig {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            SimRig::Ideal => f.write_str("ideal"),
+            SimRig::Perturbed { seed, parts } if *parts == ALL_PARTS => write!(f, "perturbed:{seed}"),
+            SimRig::Perturbed { seed, parts } => {
+                let names: Vec<&str> =
+                    RIG_PARTS.iter().enumerate().filter(|(k, _)| parts >> k & 1 == 1).map(|(_, p)| *p).collect();
+                write!(f, "perturbed:{seed}:{}", names.join("+"))
+            }
+        }
+    }
+}
+
+impl TryFrom<String> for SimRig {
+    type Error = String;
+
+    fn try_from(s: String) -> Result<Self, String> {
+        s.parse()
+    }
+}
+
+impl From<SimRig> for String {
+    fn from(r: SimRig) -> String {
+        r.to_string()
+    }
+}
+
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct SimSection {
     #[serde(default)]
     pub seed: u64,
+    /// The physical rig behind the rig file.
+    #[serde(default)]
+    pub rig: SimRig,
     #[serde(default)]
     pub realtime: bool,
     #[serde(default = "default_fps")]
@@ -81,7 +184,7 @@ fn default_time_scale() -> f32 {
 
 impl Default for SimSection {
     fn default() -> Self {
-        Self { seed: 1, realtime: false, fps: 30.0, time_scale: 0.001 }
+        Self { seed: 1, rig: SimRig::default(), realtime: false, fps: 30.0, time_scale: 0.001 }
     }
 }
 
@@ -145,6 +248,16 @@ impl RigFile {
         Ok((Self::parse(&text, &source)?, source))
     }
 
+    /// The name calibrations are kept under: the rig's name, and on the
+    /// simulated rig which physical rig it is (a calibration of one
+    /// simulated rig is wrong for another).
+    pub fn calibration_key(&self) -> String {
+        match self.kind {
+            RigKind::Hardware => self.name.clone(),
+            RigKind::Sim => format!("{}-{}", self.name, self.sim.rig.to_string().replace(':', "-")),
+        }
+    }
+
     pub fn geometry(&self) -> RigGeometry {
         self.geometry.clone().unwrap_or_default()
     }
@@ -160,6 +273,28 @@ mod tests {
         assert_eq!(r.kind, RigKind::Sim);
         let e = RigFile::parse("name = 1", "x.toml").unwrap_err();
         assert!(e.to_string().contains("x.toml"));
+        assert_eq!(r.sim.rig, SimRig::Perturbed { seed: 1, parts: ALL_PARTS });
+        assert_eq!(r.calibration_key(), "sim-perturbed-1");
+        for (text, rig) in [
+            ("ideal", SimRig::Ideal),
+            ("perturbed:7", SimRig::Perturbed { seed: 7, parts: ALL_PARTS }),
+            ("perturbed:7:camera+sensor", SimRig::Perturbed { seed: 7, parts: 0b10001 }),
+        ] {
+            assert_eq!(text.parse::<SimRig>().unwrap(), rig);
+            assert_eq!(rig.to_string(), text);
+        }
+        let only = "perturbed:2:sample".parse::<SimRig>().unwrap();
+        assert!(only.perturbs("sample") && !only.perturbs("camera") && !SimRig::Ideal.perturbs("sample"));
+        for bad in ["perturbed:x", "perturbed:1:lens", "perturbed:1:camera:leds", "tilted"] {
+            assert!(bad.parse::<SimRig>().unwrap_err().contains("perturbed:SEED"), "{bad}");
+        }
+        let e = RigFile::parse(
+            "name='s'\nkind='sim'\nwhite_reference_albedo=0.9\nled_current_ma=9\n[sim]\nrig='tilted'\n",
+            "t.toml",
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("perturbed:SEED") && e.contains("t.toml"), "{e}");
         let hw = "name='a'\nkind='hardware'\nwhite_reference_albedo=0.99\nled_current_ma=200\n";
         assert!(format!("{}", RigFile::parse(hw, "hw.toml").unwrap_err()).contains("[serial]"));
     }

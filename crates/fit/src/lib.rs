@@ -20,7 +20,8 @@
 //!
 //! [`pipeline`] runs these stages in their one order; every caller (the
 //! streaming fit, `refl fit`, the hold-out refit, benchmarks, tests) goes
-//! through it. [`calibrate`] solves the white scan's calibration.
+//! through it. [`calibrate`] solves the white scan's calibration, [`geometric`]
+//! the camera's from views of a checkerboard.
 //!
 //! Conventions are those of the `brdf` crate: local frame with the normal
 //! on `+z` and `x` along the gantry, `i` toward the light, `o` toward the
@@ -32,7 +33,9 @@ pub mod analytic;
 pub mod calibrate;
 pub mod context;
 pub mod diffuse;
+pub mod geometric;
 pub mod ingest;
+pub mod lsq;
 pub mod partial;
 pub mod pipeline;
 pub mod points;

@@ -159,6 +159,6 @@ impl Scene {
         let pos = Vec3::new(distance_mm * e.sin() * a.cos(), distance_mm * e.sin() * a.sin(), distance_mm * e.cos());
         // Straight overhead the +z up vector is degenerate; use +y then.
         let up = if elevation_deg.abs() < 1.0 { Vec3::Y } else { Vec3::Z };
-        CameraModel { position_mm: pos, look_at_mm: Vec3::ZERO, up, fov_y_deg, width: px, height: px }
+        CameraModel::pinhole(pos, Vec3::ZERO, up, fov_y_deg, px, px)
     }
 }

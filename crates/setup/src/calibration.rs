@@ -45,6 +45,24 @@ pub struct Calibration {
     pub reference_albedo: f32,
     /// RMS relative residual of the white fit (how well the model explains it).
     pub residual_rms: f32,
+    /// The camera as the geometric calibration measured it; without one
+    /// the rig file's camera is trusted.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub camera: Option<CameraCalibration>,
+}
+
+/// The camera's intrinsics and pose in the sample frame, from views of the
+/// checkerboard target (`capture --calibrate geometry`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CameraCalibration {
+    /// When it was measured (`YYYYMMDDTHHMMSSZ`).
+    pub id: String,
+    pub camera: crate::camera::CameraModel,
+    /// Reprojection error of the target's corners, RMS and largest, pixels.
+    pub rms_px: f32,
+    pub max_px: f32,
+    pub corners: u32,
+    pub views: u32,
 }
 
 impl Calibration {
@@ -61,7 +79,32 @@ impl Calibration {
             flat_field_grid: None,
             reference_albedo: 1.0,
             residual_rms: 0.0,
+            camera: None,
         }
+    }
+
+    /// The rig as this calibration knows it: `filed` (the rig file's
+    /// geometry) with the measured camera in place of the filed one. A
+    /// camera read at another resolution of the same shape (the simulated
+    /// rig's presets, a binned mode) has the same lens and pose: its
+    /// principal point scales with the width. Of another shape it is not
+    /// the measured camera, and the filed one stays.
+    pub fn geometry_of(&self, filed: &crate::geometry::RigGeometry) -> crate::geometry::RigGeometry {
+        let mut g = filed.clone();
+        if let Some(c) = &self.camera {
+            let (w, h) = (g.camera.width, g.camera.height);
+            let m = c.camera;
+            if m.width as u64 * h as u64 == m.height as u64 * w as u64 {
+                let scale = w as f32 / m.width.max(1) as f32;
+                g.camera = crate::camera::CameraModel {
+                    width: w,
+                    height: h,
+                    principal_offset_px: m.principal_offset_px * scale,
+                    ..m
+                };
+            }
+        }
+        g
     }
 
     /// Flat-field factor at a sample position (bilinear over the grid it

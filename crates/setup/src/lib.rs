@@ -10,10 +10,12 @@ pub mod calibration;
 pub mod camera;
 pub mod geometry;
 pub mod plan;
+pub mod target;
 pub mod valid;
 
 pub use calibration::Calibration;
 pub use camera::CameraModel;
 pub use geometry::{Gantry, LedBar, LedEmission, PointGrid, RigGeometry, SampleArea, trapezoid_seconds};
 pub use plan::{CapturePlan, PlanError, PlannedShot};
+pub use target::CheckerTarget;
 pub use valid::Invalid;

@@ -103,6 +103,13 @@ impl RigGeometry {
         above(&format!("{g}.camera.fov_y_deg"), c.fov_y_deg, 0.0, 170.0)?;
         count(&format!("{g}.camera.width"), c.width as u64, 8, 65_536)?;
         count(&format!("{g}.camera.height"), c.height as u64, 8, 65_536)?;
+        let half = 0.5 * c.width.max(c.height) as f32;
+        within(&format!("{g}.camera.principal_offset_px.x"), c.principal_offset_px.x, -half, half)?;
+        within(&format!("{g}.camera.principal_offset_px.y"), c.principal_offset_px.y, -half, half)?;
+        // Beyond these a lens folds its image over (the distortion's inverse
+        // stops existing within the field of view of any rig camera).
+        within(&format!("{g}.camera.radial_k[0]"), c.radial_k[0], -1.0, 1.0)?;
+        within(&format!("{g}.camera.radial_k[1]"), c.radial_k[1], -1.0, 1.0)?;
         Ok(())
     }
 }
@@ -112,6 +119,10 @@ impl Calibration {
     /// finite, non-negative levels, every LED giving light, a positive
     /// flat field.
     pub fn validate(&self) -> Result<(), Invalid> {
+        if let Some(c) = &self.camera {
+            RigGeometry { camera: c.camera, ..RigGeometry::default() }.validate()?;
+            within("camera.rms_px", c.rms_px, 0.0, 2.0)?;
+        }
         for k in 0..3 {
             within("black_level", self.black_level[k], 0.0, 1e6)?;
             within("read_noise_dn", self.read_noise_dn[k], 0.0, 1e6)?;

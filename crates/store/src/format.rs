@@ -40,6 +40,14 @@ pub struct SimInfo {
     pub material_dir: Option<String>,
     pub faults: String,
     pub seed: u64,
+    /// The physical rig behind the rig file (`ideal`, `perturbed:SEED`);
+    /// captures from before it was recorded were made on the ideal rig.
+    #[serde(default = "ideal_rig")]
+    pub rig: String,
+}
+
+fn ideal_rig() -> String {
+    "ideal".into()
 }
 
 /// `capture.json`.

@@ -36,11 +36,16 @@ struct Args {
     /// Simulated rig: use a stored material as the ground truth.
     #[arg(long, value_name = "DIR")]
     sim_material: Option<PathBuf>,
+    /// Simulated rig: the physical rig behind the rig file, `ideal` or
+    /// `perturbed:SEED` (default: the rig file's `[sim] rig`).
+    #[arg(long, value_name = "RIG")]
+    sim_rig: Option<String>,
     /// Simulated rig: inject faults, e.g. corrupt=0.01,drop=0.005,reboot-at=500.
     #[arg(long, value_name = "SPEC", default_value = "")]
     sim_faults: String,
-    /// Record a calibration instead of a sample: `dark` (lens capped) or `white` (white reference).
-    #[arg(long, value_parser = ["dark", "white"])]
+    /// Record a calibration instead of a sample: `dark` (lens capped), `white` (white reference),
+    /// `geometry` (the checkerboard target, see CALIBRATION.md) or `all` (geometry, dark, white).
+    #[arg(long, value_parser = ["dark", "white", "geometry", "all"])]
     calibrate: Option<String>,
     /// Where calibrations are kept (default: the data directory).
     #[arg(long, value_name = "DIR")]
@@ -122,13 +127,16 @@ fn main() -> ExitCode {
     let result = rt.block_on(async {
         let mut stop = cli::stop_on_signals()?;
         if let Some(which) = &args.calibrate {
-            let (rf, _) = RigFile::load(args.rig.as_deref())?;
+            let (mut rf, _) = RigFile::load(args.rig.as_deref())?;
+            if let Some(r) = &args.sim_rig {
+                rf.sim.rig = r.parse().map_err(|e| cli::usage(anyhow::anyhow!("--sim-rig: {e}")))?;
+            }
             let q = config::preset(&args.quality)
                 .ok_or_else(|| cli::usage(anyhow::anyhow!("unknown quality '{}'", args.quality)))?;
             let g = capture::geometry_for(&rf, &q);
-            let store = cli::paths::calibrations(args.calib_dir.as_deref(), &rf.name)?;
+            let store = cli::paths::calibrations(args.calib_dir.as_deref(), &rf.calibration_key())?;
             let c = tokio::select! {
-                c = capture::calibrate(&rf, &g, &store, &mut rep, which == "white") => c?,
+                c = capture::calibrate(&rf, &g, &store, &mut rep, which.parse()?) => c?,
                 _ = stop.wait_for(|s| *s) => return Err(cli::Interrupted.into()),
             };
             rep.emit(cli::progress::Event::Done { summary: serde_json::json!({ "calibration": c.id }) });
@@ -154,6 +162,7 @@ fn main() -> ExitCode {
             rig_file: args.rig.clone(),
             sim_material: args.sim_material.clone(),
             sim_faults: args.sim_faults.clone(),
+            sim_rig: args.sim_rig.clone(),
             calib_dir: args.calib_dir.clone(),
             no_fit: args.no_fit,
             stop_after: args.stop_after,

@@ -26,12 +26,13 @@ use std::time::Instant;
 
 use brdf::params::AnalyticModel;
 use glam::Vec3;
-use levenberg_marquardt::{LeastSquaresProblem, LevenbergMarquardt};
-use nalgebra::{DMatrix, DVector, Dyn, Owned};
+use levenberg_marquardt::LevenbergMarquardt;
+use nalgebra::DVector;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::context::FitContext;
+use crate::lsq::{Numeric, Step};
 use crate::partial::{Sample, lum, point_flag};
 use crate::points::{PointMaps, gather};
 use crate::samples::SampleStore;
@@ -281,7 +282,6 @@ fn point_amplitudes(model: AnalyticModel, shape: &[f32], samples: &[Sample], o: 
 struct ShapeProblem<'a> {
     model: AnalyticModel,
     points: Vec<(&'a [Sample], Vec3)>,
-    u: DVector<f64>,
     n_res: usize,
 }
 
@@ -315,48 +315,7 @@ impl ShapeProblem<'_> {
                 r.extend(samples.iter().map(|_| 1.0));
             }
         }
-        let mut v = DVector::from_vec(r);
-        v.iter_mut().for_each(|x| {
-            if !x.is_finite() {
-                *x = 1e3;
-            }
-        });
-        v
-    }
-}
-
-impl LeastSquaresProblem<f64, Dyn, Dyn> for ShapeProblem<'_> {
-    type ResidualStorage = Owned<f64, Dyn>;
-    type JacobianStorage = Owned<f64, Dyn, Dyn>;
-    type ParameterStorage = Owned<f64, Dyn>;
-
-    fn set_params(&mut self, u: &DVector<f64>) {
-        self.u = u.clone();
-    }
-
-    fn params(&self) -> DVector<f64> {
-        self.u.clone()
-    }
-
-    fn residuals(&self) -> Option<DVector<f64>> {
-        Some(self.residuals_at(&self.u))
-    }
-
-    /// Forward differences (step 1e-4 in the unconstrained parameters,
-    /// which are logarithms or angles: a relative step of 1e-4).
-    fn jacobian(&self) -> Option<DMatrix<f64>> {
-        let r0 = self.residuals_at(&self.u);
-        let mut j = DMatrix::zeros(r0.len(), self.u.len());
-        for k in 0..self.u.len() {
-            let mut u = self.u.clone();
-            let h = 1e-4;
-            u[k] += h;
-            let r = self.residuals_at(&u);
-            for m in 0..r0.len() {
-                j[(m, k)] = (r[m] - r0[m]) / h;
-            }
-        }
-        Some(j)
+        crate::lsq::finite_or(DVector::from_vec(r), 1e3)
     }
 }
 
@@ -410,7 +369,15 @@ pub fn fit_model(model: AnalyticModel, maps: &PointMaps, ev: &Evidence) -> Model
             let points: Vec<(&[Sample], Vec3)> =
                 chosen.iter().zip(&subs).map(|(&p, s)| (s.as_slice(), ev.view[p])).collect();
             let n_res = points.iter().map(|p| p.0.len()).sum();
-            let problem = ShapeProblem { model, points, u: DVector::from_vec(u0.clone()), n_res };
+            let shape_problem = ShapeProblem { model, points, n_res };
+            // Forward differences (step 1e-4 in the unconstrained
+            // parameters, which are logarithms or angles: a relative step
+            // of 1e-4).
+            let problem = Numeric::new(
+                |u: &DVector<f64>| shape_problem.residuals_at(u),
+                DVector::from_vec(u0.clone()),
+                Step::Forward(1e-4),
+            );
             let (solved, report) = LevenbergMarquardt::new().with_scale_diag(false).with_patience(40).minimize(problem);
             let u = if report.objective_function.is_finite() { solved.u.as_slice().to_vec() } else { u0 };
             shape::shape(model, &u)
