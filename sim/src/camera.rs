@@ -99,9 +99,9 @@ pub struct LedTruth {
 impl LedTruth {
     pub fn realistic(n_leds: u8, seed: u64) -> Self {
         let mut rng = Pcg64::seed_from_u64(seed ^ 0x1ed5);
-        let n = Normal::new(1.0f32, 0.04).unwrap_or_else(|_| Normal::new(1.0, 0.0).unwrap());
+        let n = Normal::new(1.0f32, 0.04).ok();
         Self {
-            scale: (0..n_leds).map(|_| n.sample(&mut rng).clamp(0.85, 1.15)).collect(),
+            scale: (0..n_leds).map(|_| n.map_or(1.0, |n| n.sample(&mut rng)).clamp(0.85, 1.15)).collect(),
             profile_exponent: 1.25,
             nominal_current_ma: 200,
         }
@@ -217,8 +217,10 @@ impl SimCamera {
         let ambient_e = truth.ambient_irradiance * std::f32::consts::PI;
         let surround: Arc<PointMaterial> = Arc::new(PointMaterial::Diffuse { kd: Vec3::splat(SURROUND_ALBEDO) });
         let mut resp_rng = Pcg64::seed_from_u64(cfg.seed ^ 0x9e1);
-        let prnu = Normal::new(1.0f32, cfg.sensor.prnu.max(0.0)).unwrap_or_else(|_| Normal::new(1.0, 0.0).unwrap());
-        let responses: Vec<f32> = (0..cam.width * cam.height).map(|_| prnu.sample(&mut resp_rng)).collect();
+        // A non-finite spread (a broken sensor model) reads as none.
+        let prnu = Normal::new(1.0f32, cfg.sensor.prnu.max(0.0)).ok();
+        let responses: Vec<f32> =
+            (0..cam.width * cam.height).map(|_| prnu.map_or(1.0, |d| d.sample(&mut resp_rng))).collect();
         (0..cam.width * cam.height)
             .into_par_iter()
             .map(|k| {

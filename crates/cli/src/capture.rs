@@ -129,11 +129,10 @@ async fn calibration_for(
                 Some(g) => {
                     let now = crate::paths::stamp_days(&crate::paths::utc_stamp());
                     let age = now.zip(crate::paths::stamp_days(&g.id)).map(|(n, t)| n - t);
-                    if age.is_some_and(|a| a > GEOMETRY_MAX_AGE_DAYS) {
+                    if let Some(days) = age.filter(|&a| a > GEOMETRY_MAX_AGE_DAYS) {
                         rep.warn(format!(
-                            "the geometric calibration is {} days old: a knocked camera or bar moves the rig's \
-                             geometry; run `capture --calibrate geometry` and `capture --calibrate white` again",
-                            age.unwrap_or_default()
+                            "the geometric calibration is {days} days old: a knocked camera or bar moves the rig's \
+                             geometry; run `capture --calibrate geometry` and `capture --calibrate white` again"
                         ));
                     }
                 }
@@ -171,10 +170,11 @@ async fn calibration_for(
 }
 
 /// Open the rig for a calibration scan; on the simulated rig with the
-/// built-in `material` in the holder.
-async fn open_for_scan(rf: &RigFile, geometry: &RigGeometry, material: &str) -> Result<session::Session> {
+/// white reference in the holder (the geometric scan puts its target there
+/// itself, `calib::geometry`).
+async fn open_for_scan(rf: &RigFile, geometry: &RigGeometry) -> Result<session::Session> {
     Ok(match rf.kind {
-        RigKind::Sim => session::open_sim(rf, geometry, sim_material(material, None)?, &FaultSpec::none()).await?,
+        RigKind::Sim => session::open_sim(rf, geometry, sim_material("white", None)?, &FaultSpec::none()).await?,
         RigKind::Hardware => session::open_hardware(rf, geometry).await?,
     })
 }
@@ -228,7 +228,7 @@ pub async fn calibrate(
         // rig's presets read it coarser; `Calibration::geometry_of` scales
         // the result to them).
         let full = rf.geometry();
-        let mut s = open_for_scan(rf, &full, "white").await?;
+        let mut s = open_for_scan(rf, &full).await?;
         let cs = camera_settings(&full, 20_000, 1.0, s.fps);
         let result = async {
             s.rig.home().await?;
@@ -244,7 +244,7 @@ pub async fn calibrate(
     let result = if scan == Scan::Geometry {
         Ok(c)
     } else {
-        let mut s = open_for_scan(rf, geometry, "white").await?;
+        let mut s = open_for_scan(rf, geometry).await?;
         let cs = camera_settings(geometry, 20_000, 1.0, s.fps);
         let result = async {
             s.rig.home().await?;

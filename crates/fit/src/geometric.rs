@@ -469,7 +469,9 @@ pub struct CameraSolution {
     pub corners: usize,
 }
 
-/// Camera parameters as the solver moves them.
+/// Camera parameters as the solver moves them: `CameraModel`'s projection
+/// again, in `f64`, because the solve's central differences (step 1e-6)
+/// need more than `f32`'s seven digits.
 #[derive(Clone, Copy, Debug)]
 struct Cam {
     f: f64,
