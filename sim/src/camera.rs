@@ -377,6 +377,7 @@ impl SimCamera {
         let max_dn = ((1u32 << sensor.bit_depth) - 1) as f32;
         let profile = self.cfg.leds.profile_exponent;
         let eye = g.camera.position_mm;
+        let axis = self.cfg.truth.led_axis();
         let bar = g.bar;
         let (w, h) = (g.camera.width as usize, g.camera.height as usize);
         let pixels = self.pixels.clone();
@@ -400,7 +401,7 @@ impl SimCamera {
                         if i.z <= 0.0 || i_local.z <= 0.0 {
                             continue;
                         }
-                        let cos_emit = i.z; // LED axis points straight down
+                        let cos_emit = -i.dot(axis);
                         let irradiance = intensity * cos_emit.powf(profile) * i_local.z / r2;
                         radiance += b.eval(i_local, px.o)[px.channel as usize] * irradiance;
                     }

@@ -293,6 +293,29 @@ impl SvBrdf for Target {
     }
 }
 
+/// A front-surface (aluminised) mirror laid in the sample holder for the
+/// geometric calibration's mirror scan. A point LED seen in a perfect
+/// mirror is a point; a real LED's die and the mirror's slight roughness
+/// make a spot of a few pixels, modelled here as a very narrow isotropic
+/// lobe (`alpha` 0.01, the spot's half-vector spread about 0.4 degrees).
+/// Not a sample: not in [`BUILTIN`].
+#[derive(Clone, Copy, Debug)]
+pub struct Mirror;
+
+/// Roughness of the simulated mirror's lobe.
+pub const MIRROR_ALPHA: f32 = 0.01;
+
+impl SvBrdf for Mirror {
+    fn name(&self) -> &str {
+        "front-surface mirror"
+    }
+
+    fn at(&self, _p: Vec2) -> PointMaterial {
+        let ndf = Arc::new(Beckmann::new(MIRROR_ALPHA, MIRROR_ALPHA, 0.0));
+        PointMaterial::microfacet(Vec3::ZERO, Vec3::splat(0.9), ndf, Fresnel::One)
+    }
+}
+
 impl SvBrdf for White {
     fn name(&self) -> &str {
         "white"

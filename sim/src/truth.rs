@@ -23,10 +23,13 @@
 //! - light in the room: an ambient irradiance on everything in view;
 //! - the sensor's dark current (per pixel, with a few hot pixels).
 //!
+//! The LEDs' axes are square to the bar, tilting with its roll
+//! ([`RigTruth::led_axis`]).
+//!
 //! Not modelled: LED intensity drift with on-time (the LEDs' spread and
-//! emission profile are [`crate::camera::LedTruth`]'s), the LEDs' axes
-//! tilting with the bar, and the bar's shadow box tilting with it (the
-//! occluder moves with the bar's height and the carriage's true position).
+//! emission profile are [`crate::camera::LedTruth`]'s), and the bar's
+//! shadow box tilting with it (the occluder moves with the bar's height and
+//! the carriage's true position).
 
 use glam::{Mat3, Vec2, Vec3};
 use rand::{Rng, SeedableRng};
@@ -281,6 +284,14 @@ impl RigTruth {
         nominal
             + Vec3::new(y * self.bar_yaw_rad.tan(), 0.0, y * self.bar_roll_rad.tan())
             + self.led_offsets_mm.get(k as usize).copied().unwrap_or(Vec3::ZERO)
+    }
+
+    /// The direction the LEDs shine (their axis, pointing down): square to
+    /// the bar, which they are soldered to, so it tilts with the bar's
+    /// roll (its yaw turns the bar about the vertical, which leaves the
+    /// axis as it is).
+    pub fn led_axis(&self) -> Vec3 {
+        Vec3::new(0.0, self.bar_roll_rad.tan(), -1.0).normalize()
     }
 
     /// The frame of the surface the camera sees: the rotation from its own

@@ -8,7 +8,7 @@ use fit::{FitContext, FitInputs};
 use rig::camera::{Camera, CameraSettings};
 use rig::clock;
 use rig::mcu::{Connector, Rig};
-use setup::{Calibration, CapturePlan, CheckerTarget, PointGrid, RigGeometry};
+use setup::{Calibration, CheckerTarget, RigGeometry};
 
 use crate::progress::{Event, Reporter};
 
@@ -46,8 +46,9 @@ pub async fn dark<K: Connector, C: Camera>(
     })
 }
 
-/// White scan: the white reference under every LED at every step of a
-/// plan; solves LED intensities, emission profile and flat field.
+/// White scan: dark frames, then the white reference under every LED at
+/// every step of a plan; solves LED intensities, emission profile and flat
+/// field (and the scale of a mirror scan's LEDs, `fit::calibrate`).
 #[allow(clippy::too_many_arguments)]
 pub async fn white<K: Connector, C: Camera>(
     rig: &mut Rig<K>,
@@ -61,15 +62,7 @@ pub async fn white<K: Connector, C: Camera>(
 ) -> Result<Calibration> {
     rep.stage("calibrate", format!("white scan of a reference of albedo {albedo}"));
     crate::session::configure_camera(camera, settings, rep).await?;
-    let plan = CapturePlan {
-        steps: 48,
-        first_mm: geometry.gantry.travel_min_mm,
-        last_mm: geometry.gantry.travel_max_mm,
-        leds: (0..geometry.bar.n_leds).collect(),
-        exposures_us: vec![settings.exposure_us],
-        gain: settings.gain,
-        dark_frames: 0,
-    };
+    let plan = fit::calibrate::white_plan(geometry, settings.exposure_us, settings.gain);
     plan.validate(geometry)?;
     // Solve relative to a nominal calibration: unit LEDs, no flat field,
     // Lambertian profile, the dark scan's black level.
@@ -84,12 +77,22 @@ pub async fn white<K: Connector, C: Camera>(
         geometry: geometry.clone(),
         plan: plan.clone(),
         calibration: nominal.clone(),
-        grid: PointGrid { cols: 24, rows: 24 },
+        grid: fit::calibrate::WHITE_GRID,
         e_per_dn,
         bit_depth: 12,
     };
     let ctx = FitContext::new(inputs);
     let mut acc = fit::calibrate::WhiteAccumulator::new(&ctx, albedo);
+    // Dark frames at the scan's exposure: the room's light and the
+    // sensor's dark current, pixel by pixel, which the white frames carry
+    // and a black level does not remove.
+    rig.all_off().await?;
+    let off = clock::to_mono(tokio::time::Instant::now());
+    for _ in 0..DARK_FRAMES {
+        let f = camera.frame_after(off, Duration::from_secs(5)).await?;
+        acc.push_dark(&f);
+        rig.keepalive().await?;
+    }
     let shots = plan.shots();
     let total = shots.len() as u64;
     let started = std::time::Instant::now();
@@ -110,6 +113,25 @@ pub async fn white<K: Connector, C: Camera>(
     rig.all_off().await?;
     let solved = tokio::task::block_in_place(|| acc.solve(&nominal, crate::paths::utc_stamp()))
         .context("the white scan had too few usable samples (is the reference in place and lit?)")?;
+    if let Some(l) = &solved.lights {
+        let off = l.white_scale / base_scale(&base) - 1.0;
+        rep.stage(
+            "calibrate",
+            format!(
+                "the light's fall-off across the white scales the LEDs' distances from the camera's mirror image by \
+                 {:+.3}% (the mirror left them +-{:.3}%)",
+                100.0 * off,
+                100.0 * l.scale_sd
+            ),
+        );
+        if off.abs() > 0.95 * fit::calibrate::SCALE_SEARCH_SDS as f32 * l.scale_sd {
+            rep.warn(
+                "the white scan and the mirror scan disagree about the LEDs' distances by more than the build's \
+                 tolerances allow: check that the white reference lay where the mirror did, and the rig file's LED \
+                 pitch",
+            );
+        }
+    }
     rep.stage(
         "calibrate",
         format!(
@@ -120,6 +142,12 @@ pub async fn white<K: Connector, C: Camera>(
         ),
     );
     Ok(solved)
+}
+
+/// The white scale `base`'s LEDs already had (a white scan after another
+/// starts from the last one's LEDs).
+fn base_scale(base: &Calibration) -> f32 {
+    base.lights.as_ref().map_or(1.0, |l| l.white_scale)
 }
 
 fn spread(v: &[f32]) -> f32 {
@@ -140,7 +168,8 @@ pub const TARGET_VIEWS: [&str; 4] = [
 /// [`TARGET_VIEWS`], lit by every LED from the carriage positions where the
 /// bar hides nothing (`fit::geometric::lighting_positions`), the frames of
 /// each view summed less its dark frames; the camera solved from the
-/// corners (`fit::geometric`).
+/// corners (`fit::geometric`); then the mirror scan ([`MIRROR_VIEW`]), the
+/// LEDs and the carriage's travel solved with that camera (`fit::mirror`).
 pub async fn geometry<K: Connector>(
     rig: &mut Rig<K>,
     camera: &mut crate::session::RigCamera,
@@ -160,6 +189,7 @@ pub async fn geometry<K: Connector>(
             n = target.squares
         ),
     );
+    let default = settings.clone();
     let settings = CameraSettings {
         exposure_us: settings.exposure_us.saturating_mul(fit::geometric::EXPOSURE_FACTOR),
         ..settings.clone()
@@ -177,7 +207,7 @@ pub async fn geometry<K: Connector>(
     let mut done = 0u64;
     let mut views = Vec::new();
     for (v, ask) in TARGET_VIEWS.iter().enumerate() {
-        place_target(camera, v, ask, &target, rep).await?;
+        place(camera, Holder::Target { v, ask, target: &target }, rep).await?;
         let mut luma = Luma::new(filed.camera.width, filed.camera.height);
         rig.all_off().await?;
         let off = clock::to_mono(tokio::time::Instant::now());
@@ -238,38 +268,161 @@ pub async fn geometry<K: Connector>(
         rep.warn(format!("the camera is {moved:.0} mm from where the rig file puts it: correct the rig file"));
     }
     let id = crate::paths::utc_stamp();
+    let lights = mirror_scan(rig, camera, filed, &c, &default, rep).await?;
     Ok(Calibration {
         id: id.clone(),
         camera: Some(setup::calibration::CameraCalibration {
-            id,
+            id: id.clone(),
             camera: c,
             rms_px: sol.rms_px,
             max_px: sol.max_px,
             corners: sol.corners as u32,
             views: views.len() as u32,
         }),
+        lights: Some(setup::calibration::LightCalibration { id, ..lights }),
         ..base
     })
 }
 
-/// Put the target in view `v`'s placement: the simulated operator does it;
-/// on hardware the operator is asked and confirms.
-async fn place_target(
+/// What the operator is asked to do before the mirror scan.
+pub const MIRROR_VIEW: &str =
+    "lay the front-surface mirror flat in the sample holder, mirror side up, in place of the target";
+
+/// The mirror scan: every LED at every carriage position of
+/// `fit::mirror::scan_positions`, each frame less the mean of the dark
+/// frames, its highlight found; the LEDs and the carriage's travel solved
+/// from them with the calibrated `camera` (`fit::mirror`).
+async fn mirror_scan<K: Connector>(
+    rig: &mut Rig<K>,
     camera: &mut crate::session::RigCamera,
-    v: usize,
-    ask: &str,
-    target: &CheckerTarget,
+    filed: &RigGeometry,
+    measured: &setup::CameraModel,
+    default: &CameraSettings,
     rep: &mut Reporter,
-) -> Result<()> {
+) -> Result<setup::calibration::LightCalibration> {
+    use fit::geometric::Luma;
+    use fit::mirror::{DARK_FRAMES, EXPOSURE_DIVISOR, Highlight, find_highlight, scan_positions, solve_lights};
+    place(camera, Holder::Mirror, rep).await?;
+    let settings = CameraSettings { exposure_us: (default.exposure_us / EXPOSURE_DIVISOR).max(1), ..default.clone() };
+    crate::session::configure_camera(camera, &settings, rep).await?;
+    let positions = scan_positions(filed);
+    if positions.len() < 3 {
+        bail!("the rig file's geometry leaves fewer than 3 carriage positions whose highlights land on the mirror");
+    }
+    let (w, h) = (filed.camera.width, filed.camera.height);
+    let mut dark = Luma::new(w, h);
+    rig.all_off().await?;
+    let off = clock::to_mono(tokio::time::Instant::now());
+    let mut top = 0.0f32;
+    for _ in 0..DARK_FRAMES {
+        let f = camera.frame_after(off, Duration::from_secs(5)).await?;
+        top = ((1u64 << f.bit_depth.min(32)) - 1) as f32;
+        if !dark.add(&f, -1.0 / DARK_FRAMES as f32) {
+            bail!("the camera delivered {}x{} frames, not {w}x{h}", f.width, f.height);
+        }
+        rig.keepalive().await?;
+    }
+    // Saturated pixels (within a few read-noise widths of the top code,
+    // less the black level the dark frames removed) carry no shape.
+    let black = -dark.data.iter().sum::<f32>() / dark.data.len().max(1) as f32;
+    let ceiling = 0.98 * (top - black);
+    let leds: Vec<u8> = (0..filed.bar.n_leds).collect();
+    let total = (positions.len() * leds.len()) as u64;
+    let started = std::time::Instant::now();
+    let mut done = 0u64;
+    let mut found = Vec::new();
+    // Every position approached from below, as a capture's are, so the
+    // gantry's backlash is taken up the same way.
+    rig.move_to(((positions[0] - 5.0).max(filed.gantry.travel_min_mm) * 1000.0).round() as i32).await?;
+    for &x in &positions {
+        rig.all_off().await?;
+        rig.move_to((x * 1000.0).round() as i32).await?;
+        for &led in &leds {
+            let lit = rig.led_on(led).await?;
+            let f = camera.frame_after(clock::to_mono(lit), Duration::from_secs(5)).await?;
+            let mut img = dark.clone();
+            if !img.add(&f, 1.0) {
+                bail!("the camera delivered {}x{} frames, not {w}x{h}", f.width, f.height);
+            }
+            if let Some(pixel) = tokio::task::block_in_place(|| find_highlight(&img, ceiling)) {
+                found.push(Highlight { led, commanded_mm: x, pixel });
+            }
+            done += 1;
+            let rate = done as f64 / started.elapsed().as_secs_f64().max(1e-9);
+            rep.emit(Event::Frames { done, total, rate_hz: rate, eta_s: (total - done) as f64 / rate.max(1e-9) });
+        }
+    }
+    rig.all_off().await?;
+    let sol = tokio::task::block_in_place(|| solve_lights(&found, measured, filed))?;
+    let nominal_mid = filed.bar.led_position(0.0, filed.bar.n_leds / 2);
+    let mid = sol.led_mm[(filed.bar.n_leds / 2) as usize];
+    rep.stage(
+        "calibrate",
+        format!(
+            "LEDs: {} measured from {} highlights (the others placed along the bar through them), {:.3} mm RMS from \
+             their rays ({:.3} mm worst); the middle LED {:.2} mm from the rig file's place, at height {:.2} mm \
+             (filed {:.2}); the gantry's scale {:+.2}% (+-{:.2}% from the build's tolerances: a mirror cannot see it)",
+            sol.measured.len(),
+            sol.used,
+            sol.rms_mm,
+            sol.max_mm,
+            (mid - nominal_mid).length(),
+            mid.z,
+            nominal_mid.z,
+            100.0 * (sol.travel_mm.length() - 1.0),
+            100.0 * sol.scale_sd
+        ),
+    );
+    if sol.rms_mm > 0.1 {
+        rep.warn(format!(
+            "the LEDs fit their highlights to {:.2} mm RMS (expected below 0.1): check that the mirror is flat and \
+             clean and lay where the target did",
+            sol.rms_mm
+        ));
+    }
+    Ok(setup::calibration::LightCalibration {
+        id: String::new(),
+        led_mm: sol.led_mm,
+        travel_mm: sol.travel_mm,
+        measured: sol.measured,
+        highlights: sol.used as u32,
+        rms_mm: sol.rms_mm,
+        max_mm: sol.max_mm,
+        scale_sd: sol.scale_sd,
+        white_scale: 1.0,
+    })
+}
+
+/// What the geometric scan has the operator put in the sample holder.
+enum Holder<'a> {
+    /// The checkerboard in view `v`'s placement, as `ask` says.
+    Target { v: usize, ask: &'a str, target: &'a CheckerTarget },
+    /// The front-surface mirror, flat ([`MIRROR_VIEW`]).
+    Mirror,
+}
+
+/// Put `what` in the sample holder: the simulated operator does it; on
+/// hardware the operator is asked and confirms.
+async fn place(camera: &mut crate::session::RigCamera, what: Holder<'_>, rep: &mut Reporter) -> Result<()> {
+    let (ask, step) = match &what {
+        Holder::Target { v, ask, .. } => (*ask, format!("view {}", v + 1)),
+        Holder::Mirror => (MIRROR_VIEW, "mirror".to_string()),
+    };
     match camera {
         crate::session::RigCamera::Sim(c) => {
-            rep.stage("calibrate", format!("view {}: the simulated operator will {ask}", v + 1));
-            let placement = sim::truth::target_placements().get(v).copied().flatten();
-            tokio::task::block_in_place(|| c.restage(std::sync::Arc::new(sim::materials::Target(*target)), placement));
+            rep.stage("calibrate", format!("{step}: the simulated operator will {ask}"));
+            let (material, placement): (std::sync::Arc<dyn material::SvBrdf>, _) = match what {
+                Holder::Target { v, target, .. } => (
+                    std::sync::Arc::new(sim::materials::Target(*target)),
+                    sim::truth::target_placements().get(v).copied().flatten(),
+                ),
+                Holder::Mirror => (std::sync::Arc::new(sim::materials::Mirror), None),
+            };
+            tokio::task::block_in_place(|| c.restage(material, placement));
             Ok(())
         }
         #[cfg(target_os = "linux")]
-        crate::session::RigCamera::V4l2(_) => operator_confirms(&format!("view {}: {ask}", v + 1)).await,
+        crate::session::RigCamera::V4l2(_) => operator_confirms(&format!("{step}: {ask}")).await,
     }
 }
 

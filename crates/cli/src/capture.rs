@@ -114,7 +114,7 @@ async fn calibration_for(
     rep: &mut Reporter,
 ) -> Result<(Calibration, String)> {
     let newest = store.newest()?;
-    let measured_camera = newest.as_ref().is_some_and(|(_, c)| c.camera.is_some());
+    let measured_geometry = newest.as_ref().is_some_and(|(_, c)| c.camera.is_some() && c.lights.is_some());
     if let Some((path, c)) = newest {
         let usable = c.led_scale.len() == geometry.bar.n_leds as usize && !c.flat_field.is_empty();
         // A rig may run without a geometric calibration (the rig file's
@@ -127,6 +127,13 @@ async fn calibration_for(
                      (run `capture --calibrate geometry`, then `capture --calibrate white`; see CALIBRATION.md)",
                 ),
                 Some(g) => {
+                    if c.lights.is_none() {
+                        rep.warn(
+                            "this rig's geometric calibration has no mirror scan: the LEDs are placed by the rig file \
+                             (run `capture --calibrate geometry` again, then `capture --calibrate white`; see \
+                             CALIBRATION.md)",
+                        );
+                    }
                     let now = crate::paths::stamp_days(&crate::paths::utc_stamp());
                     let age = now.zip(crate::paths::stamp_days(&g.id)).map(|(n, t)| n - t);
                     if let Some(days) = age.filter(|&a| a > GEOMETRY_MAX_AGE_DAYS) {
@@ -154,7 +161,7 @@ async fn calibration_for(
             store.dir().display()
         );
     }
-    let scan = if measured_camera { Scan::White } else { Scan::All };
+    let scan = if measured_geometry { Scan::White } else { Scan::All };
     rep.stage(
         "calibrate",
         match scan {
@@ -187,7 +194,8 @@ pub enum Scan {
     /// Dark, then the white reference: LED intensities, emission profile,
     /// flat field.
     White,
-    /// The checkerboard target: the camera's intrinsics and pose.
+    /// The checkerboard target, then a flat mirror: the camera's
+    /// intrinsics and pose, then where the LEDs are.
     Geometry,
     /// Geometry, dark and white, in that order (the white scan's flat
     /// field is mapped with the measured camera).

@@ -10,6 +10,7 @@
 //! fixing the split between LEDs and flat field.
 
 use frame::Frame;
+use glam::Vec3;
 use rayon::prelude::*;
 use setup::{Calibration, PlannedShot};
 
@@ -30,21 +31,45 @@ const OUTLIER_SIGMAS: f64 = 4.0;
 /// (the pixel footprint straddles the shadow).
 const SHADOW_MARGIN_MM: f32 = 3.0;
 
-/// Collects `ln M` and `ln cos_emit` for every usable white sample.
+/// Collects the signal of every usable white sample; [`WhiteAccumulator::solve`]
+/// turns it into `ln M` and `ln cos_emit` with the rig's geometry.
 #[derive(Debug)]
 pub struct WhiteAccumulator<'a> {
     ctx: &'a FitContext,
     albedo: f32,
-    /// `[light][point]`: `(ln M, ln cos_emit)`, NaN where unusable.
-    data: Vec<(f32, f32)>,
+    /// `[light][point]`: `ln(signal pi / a)`, NaN where unusable.
+    signal: Vec<f32>,
     black: [f32; 3],
+    /// Dark frames taken with the scan, if any (else `black` is subtracted).
+    dark: crate::ingest::DarkLevel,
     peak: Vec<f32>,
 }
+
+/// The white scan's plan: every LED at 48 carriage positions over the
+/// whole travel, at the rig's default exposure and gain.
+pub fn white_plan(g: &setup::RigGeometry, exposure_us: u32, gain: f32) -> setup::CapturePlan {
+    setup::CapturePlan {
+        steps: 48,
+        first_mm: g.gantry.travel_min_mm,
+        last_mm: g.gantry.travel_max_mm,
+        leds: (0..g.bar.n_leds).collect(),
+        exposures_us: vec![exposure_us],
+        gain,
+        dark_frames: 0,
+    }
+}
+
+/// The points the white scan solves the flat field on.
+pub const WHITE_GRID: setup::PointGrid = setup::PointGrid { cols: 24, rows: 24 };
 
 /// Only samples lit at least this bright (relative to the point's brightest
 /// light) are used: dimmer ones carry shot noise of several per cent and
 /// add nothing the brighter ones do not measure better.
 const MIN_RELATIVE_IRRADIANCE: f32 = 0.1;
+
+/// The white scan searches the scale a mirror scan leaves open within this
+/// many of its standard deviations (`setup::LightCalibration::scale_sd`).
+pub const SCALE_SEARCH_SDS: f64 = 4.0;
 
 impl<'a> WhiteAccumulator<'a> {
     /// `ctx` must be built with a nominal calibration (unit LED scale, no
@@ -55,7 +80,22 @@ impl<'a> WhiteAccumulator<'a> {
             .into_par_iter()
             .map(|p| (0..ctx.n_lights()).filter_map(|q| ctx.sample(p, q)).map(|s| s.irradiance).fold(0.0f32, f32::max))
             .collect();
-        Self { ctx, albedo, data: vec![(f32::NAN, 0.0); n], black: ctx.inputs.calibration.black_level, peak }
+        Self {
+            ctx,
+            albedo,
+            signal: vec![f32::NAN; n],
+            black: ctx.inputs.calibration.black_level,
+            dark: Default::default(),
+            peak,
+        }
+    }
+
+    /// Add a frame taken with every LED off, at the scan's exposure: the
+    /// mean of these is subtracted pixel by pixel (dark current, hot
+    /// pixels and the room's light, which a black level leaves in), from
+    /// the shots pushed after them.
+    pub fn push_dark(&mut self, f: &Frame) {
+        self.dark.add(f);
     }
 
     pub fn push_shot(&mut self, shot: &PlannedShot, f: &Frame) {
@@ -65,9 +105,10 @@ impl<'a> WhiteAccumulator<'a> {
         let scale = 1.0 / (f.meta.exposure_us.max(1) as f32 * 1e-6 * f.meta.gain.max(crate::tol::MIN_DIVISOR));
         let k = std::f32::consts::PI / self.albedo;
         let black = self.black;
+        let dark = &self.dark;
         let peak = &self.peak;
         let n = ctx.n_points();
-        self.data[q * n..(q + 1) * n].par_iter_mut().enumerate().for_each(|(p, slot)| {
+        self.signal[q * n..(q + 1) * n].par_iter_mut().enumerate().for_each(|(p, slot)| {
             let (Some(px), Some(g)) = (ctx.pixels[p], ctx.sample(p, q)) else { return };
             let geo = &ctx.inputs.geometry;
             let light = &ctx.lights[q];
@@ -80,42 +121,97 @@ impl<'a> WhiteAccumulator<'a> {
             if clipped {
                 return;
             }
+            let black = dark.at(px).unwrap_or(black);
             let lum = (0..3).map(|c| v[c] - black[c]).sum::<f32>() / 3.0;
-            let m = lum * scale * g.to_rho * k;
+            let m = lum * scale * k;
             if m > 0.0 && m.is_finite() {
-                let cos_emit = g.i.z;
-                *slot = (m.ln(), cos_emit.ln());
+                *slot = m.ln();
             }
         });
     }
 
-    /// Solve for LED scales, flat field and profile exponent.
+    /// `(ln M, ln cos_emit)` of every sample (NaN `ln M` where unusable)
+    /// with the LEDs scaled by `alpha` about `centre`.
+    fn log_data(&self, centre: Vec3, alpha: f32) -> Vec<(f32, f32)> {
+        let ctx = self.ctx;
+        let np = ctx.n_points();
+        let mut out = vec![(f32::NAN, 0.0f32); self.signal.len()];
+        out.par_chunks_mut(np).enumerate().for_each(|(q, row)| {
+            let pos = centre + alpha * (ctx.lights[q].pos - centre);
+            for (p, slot) in row.iter_mut().enumerate() {
+                let s = self.signal[q * np + p];
+                if !s.is_finite() {
+                    continue;
+                }
+                if let Some(g) = ctx.sample_from(p, q, pos) {
+                    *slot = (s + g.to_rho.ln(), g.cos_emit.ln());
+                }
+            }
+        });
+        out
+    }
+
+    /// Solve for LED scales, flat field and profile exponent. With a
+    /// mirror scan's LEDs in `base`, first the one scale the mirror could
+    /// not see (`fit::mirror`): the LEDs scaled about the camera's mirror
+    /// image to where the white's light falls as the model says (the
+    /// smallest residual, by golden-section search within
+    /// [`SCALE_SEARCH_SDS`] of the mirror's estimate; the light's fall-off
+    /// across the sample changes with the LEDs' distance in a way no LED
+    /// intensity, flat field or profile can take up), over the lights of
+    /// the LEDs the mirror measured.
     pub fn solve(&self, base: &Calibration, id: String) -> Option<Calibration> {
         let (nq, np) = (self.ctx.n_lights(), self.ctx.n_points());
-        let mut data = self.data.clone();
+        let cam = self.ctx.inputs.geometry.camera.position_mm;
+        let centre = Vec3::new(cam.x, cam.y, -cam.z);
+        let mut data = self.log_data(centre, 1.0);
         if data.iter().filter(|d| d.0.is_finite()).count() < (nq + np) * 2 {
             return None;
         }
         let mut ls = vec![0.0f64; nq];
         let mut lf = vec![0.0f64; np];
         let mut dm = 0.0f64;
-        for pass in 0..2 {
-            als(&data, nq, np, &mut ls, &mut lf, &mut dm);
-            if pass == 0 {
-                let mut abs: Vec<f64> = residuals(&data, nq, np, &ls, &lf, dm).map(|r| r.abs()).collect();
-                let k = abs.len() / 2;
-                let mad = *abs.select_nth_unstable_by(k, |a, b| a.total_cmp(b)).1;
-                let limit = OUTLIER_SIGMAS * 1.4826 * mad.max(crate::tol::MIN_MAD);
-                for q in 0..nq {
-                    for p in 0..np {
-                        let (lm, lc) = data[q * np + p];
-                        if lm.is_finite() && ((lm as f64 - ls[q] - lf[p] - dm * lc as f64).abs() > limit) {
-                            data[q * np + p].0 = f32::NAN;
-                        }
-                    }
+        // First pass: the outliers, which every later solve leaves out.
+        als(&data, nq, np, &mut ls, &mut lf, &mut dm);
+        let mut abs: Vec<f64> = residuals(&data, nq, np, &ls, &lf, dm).map(|r| r.abs()).collect();
+        let k = abs.len() / 2;
+        let mad = *abs.select_nth_unstable_by(k, |a, b| a.total_cmp(b)).1;
+        let limit = OUTLIER_SIGMAS * 1.4826 * mad.max(crate::tol::MIN_MAD);
+        let mut kept = vec![true; nq * np];
+        for q in 0..nq {
+            for p in 0..np {
+                let (lm, lc) = data[q * np + p];
+                if lm.is_finite() && ((lm as f64 - ls[q] - lf[p] - dm * lc as f64).abs() > limit) {
+                    kept[q * np + p] = false;
+                    data[q * np + p].0 = f32::NAN;
                 }
             }
         }
+        let drop = |mut d: Vec<(f32, f32)>| {
+            d.iter_mut().zip(&kept).filter(|(_, k)| !**k).for_each(|(v, _)| v.0 = f32::NAN);
+            d
+        };
+        let mut alpha = 1.0f64;
+        if let Some(lights) = base.lights.as_ref().filter(|l| l.scale_sd > 0.0) {
+            let counted: Vec<bool> = self.ctx.lights.iter().map(|l| lights.measured.contains(&l.led)).collect();
+            let (ls0, lf0, dm0) = (ls.clone(), lf.clone(), dm);
+            let cost = |a: f64| {
+                let d = drop(self.log_data(centre, a as f32));
+                let (mut ls, mut lf, mut dm) = (ls0.clone(), lf0.clone(), dm0);
+                als(&d, nq, np, &mut ls, &mut lf, &mut dm);
+                (0..nq)
+                    .filter(|&q| counted[q])
+                    .flat_map(|q| (0..np).map(move |p| (q, p)))
+                    .filter_map(|(q, p)| residual(d[q * np + p], dm, ls[q] + lf[p]))
+                    .map(|r| r * r)
+                    .sum::<f64>()
+            };
+            let reach = SCALE_SEARCH_SDS * lights.scale_sd as f64;
+            // 25 steps shrink the bracket to 1e-5 of itself, well under 0.001%.
+            alpha = crate::lsq::golden_section(cost, 1.0 - reach, 1.0 + reach, 25);
+            data = drop(self.log_data(centre, alpha as f32));
+        }
+        als(&data, nq, np, &mut ls, &mut lf, &mut dm);
         let (mut ss, mut n) = (0.0f64, 0usize);
         for r in residuals(&data, nq, np, &ls, &lf, dm) {
             ss += r * r;
@@ -143,6 +239,13 @@ impl<'a> WhiteAccumulator<'a> {
                 led_scale[k] = (s / c as f64).exp() as f32 * base.led_scale[k];
             }
         }
+        let a = alpha as f32;
+        let lights = base.lights.clone().map(|l| setup::calibration::LightCalibration {
+            led_mm: l.led_mm.iter().map(|&p| centre + a * (p - centre)).collect(),
+            travel_mm: a * l.travel_mm,
+            white_scale: l.white_scale * a,
+            ..l
+        });
         Some(Calibration {
             id,
             led_scale,
@@ -151,6 +254,7 @@ impl<'a> WhiteAccumulator<'a> {
             flat_field_grid: Some(self.ctx.inputs.grid),
             reference_albedo: self.albedo,
             residual_rms: ((ss / n.max(1) as f64).sqrt()) as f32,
+            lights,
             ..base.clone()
         })
     }

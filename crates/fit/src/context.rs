@@ -36,6 +36,8 @@ pub struct Light {
 pub struct SampleGeometry {
     /// Unit direction toward the light.
     pub i: Vec3,
+    /// Cosine of the angle from the LED's axis toward the point.
+    pub cos_emit: f32,
     /// Factor from signal to reflectance: `r^2 / (S_q F P cos_i)`.
     pub to_rho: f32,
     /// Relative irradiance `S_q F P cos_i / r^2` (for the dim-light mask).
@@ -75,6 +77,8 @@ pub struct FitContext {
     pub lights: Vec<Light>,
     /// Spacing of neighbouring lights along the gantry and along the bar (mm).
     pub step_spacing_mm: f32,
+    /// The direction the LEDs shine (`setup::Calibration::led_axis`).
+    pub led_axis: Vec3,
     pub led_spacing_mm: f32,
 }
 
@@ -112,7 +116,8 @@ impl FitContext {
                     .copied()
                     .unwrap_or(1.0)
                     .max(crate::tol::MIN_LED_SCALE);
-                lights.push(Light { step: s, led, bar_x_mm, pos: g.bar.led_position(bar_x_mm, led), scale });
+                let pos = inputs.calibration.light_position(&g.bar, bar_x_mm, led);
+                lights.push(Light { step: s, led, bar_x_mm, pos, scale });
             }
         }
         let plan = &inputs.plan;
@@ -125,7 +130,8 @@ impl FitContext {
         } else {
             g.bar.pitch_mm
         };
-        Self { inputs, positions, pixels, view, flat, lights, step_spacing_mm, led_spacing_mm }
+        let led_axis = inputs.calibration.led_axis();
+        Self { inputs, positions, pixels, view, flat, lights, step_spacing_mm, led_spacing_mm, led_axis }
     }
 
     /// Angular spacing (radians) between the half vector of light `q` at
@@ -153,19 +159,26 @@ impl FitContext {
     /// The geometry of point `p` lit by light `q`; `None` if the light is
     /// at or below the point's horizon (beyond [`MIN_COS_I`]).
     pub fn sample(&self, p: usize, q: usize) -> Option<SampleGeometry> {
+        self.sample_from(p, q, self.lights[q].pos)
+    }
+
+    /// [`FitContext::sample`] with light `q`'s LED at `pos` instead of
+    /// where the calibration puts it (the white scan trying the scale a
+    /// mirror cannot see, `calibrate`).
+    pub fn sample_from(&self, p: usize, q: usize, pos: Vec3) -> Option<SampleGeometry> {
         let x = self.positions[p];
         let l = &self.lights[q];
-        let d = l.pos - x;
+        let d = pos - x;
         let r2 = d.length_squared();
         let i = d / r2.sqrt();
         if i.z < MIN_COS_I {
             return None;
         }
-        let cos_emit = i.z; // the LEDs point straight down
+        let cos_emit = (-i.dot(self.led_axis)).max(MIN_COS_I);
         let profile = cos_emit.powf(self.inputs.calibration.profile_exponent);
         let irradiance = l.scale * self.flat[p] * profile * i.z / r2;
         let g = &self.inputs.geometry;
         let occluded = g.bar.occludes(l.bar_x_mm, x, g.camera.position_mm, OCCLUSION_MARGIN_MM);
-        Some(SampleGeometry { i, to_rho: 1.0 / irradiance, irradiance, occluded })
+        Some(SampleGeometry { i, cos_emit, to_rho: 1.0 / irradiance, irradiance, occluded })
     }
 }

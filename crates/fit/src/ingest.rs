@@ -38,12 +38,52 @@ pub const DIM_FRACTION: f32 = 0.02;
 /// lobes seen by a camera pixel.
 pub const MAX_RHO: f32 = 6.0e4;
 
+/// The mean of a set of dark frames (LEDs off) per pixel, demosaiced: the
+/// sensor's black level and dark current and the room's light, pixel by
+/// pixel.
+#[derive(Clone, Debug, Default)]
+pub struct DarkLevel {
+    /// Sum and count of the frames.
+    sum: Option<(RgbImage, u32)>,
+}
+
+impl DarkLevel {
+    pub fn add(&mut self, frame: &Frame) {
+        let img = frame.to_rgb();
+        match &mut self.sum {
+            None => self.sum = Some((img, 1)),
+            Some((sum, n)) if sum.width == img.width && sum.height == img.height => {
+                for (a, b) in sum.r.iter_mut().zip(&img.r) {
+                    *a += b;
+                }
+                for (a, b) in sum.g.iter_mut().zip(&img.g) {
+                    *a += b;
+                }
+                for (a, b) in sum.b.iter_mut().zip(&img.b) {
+                    *a += b;
+                }
+                *n += 1;
+            }
+            // A frame of another size is not a dark frame of this camera.
+            Some(_) => {}
+        }
+    }
+
+    /// The mean dark level (DN) at a pixel; `None` without frames.
+    pub fn at(&self, px: glam::Vec2) -> Option<[f32; 3]> {
+        let (sum, n) = self.sum.as_ref()?;
+        let (v, _) = sum.sample(px.x, px.y)?;
+        let k = 1.0 / *n as f32;
+        Some([v[0] * k, v[1] * k, v[2] * k])
+    }
+}
+
 #[derive(Debug)]
 pub struct Ingest<'a> {
     ctx: &'a FitContext,
     store: SampleStore,
-    /// Sum and count of dark frames per exposure, per pixel (demosaiced RGB).
-    dark: Vec<Option<(RgbImage, u32)>>,
+    /// Dark frames per exposure.
+    dark: Vec<DarkLevel>,
     /// Brightest irradiance over all lights, per point.
     peak_irradiance: Vec<f32>,
     pub frames: u64,
@@ -59,7 +99,7 @@ impl<'a> Ingest<'a> {
         Self {
             ctx,
             store: SampleStore::new(n, ctx.n_lights()),
-            dark: vec![None; ctx.inputs.plan.exposures_us.len()],
+            dark: vec![DarkLevel::default(); ctx.inputs.plan.exposures_us.len()],
             peak_irradiance,
             frames: 0,
         }
@@ -67,38 +107,15 @@ impl<'a> Ingest<'a> {
 
     /// Add a dark frame taken at exposure index `exposure`.
     pub fn push_dark(&mut self, exposure: u8, frame: &Frame) {
-        let img = frame.to_rgb();
-        let slot = match self.dark.get_mut(exposure as usize) {
-            Some(s) => s,
-            None => return,
-        };
-        match slot {
-            None => *slot = Some((img, 1)),
-            Some((sum, n)) => {
-                for (a, b) in sum.r.iter_mut().zip(&img.r) {
-                    *a += b;
-                }
-                for (a, b) in sum.g.iter_mut().zip(&img.g) {
-                    *a += b;
-                }
-                for (a, b) in sum.b.iter_mut().zip(&img.b) {
-                    *a += b;
-                }
-                *n += 1;
-            }
+        if let Some(d) = self.dark.get_mut(exposure as usize) {
+            d.add(frame);
+            self.frames += 1;
         }
-        self.frames += 1;
     }
 
     /// Dark level (DN) at a pixel for an exposure.
     fn dark_at(&self, exposure: u8, px: glam::Vec2) -> [f32; 3] {
-        if let Some(Some((sum, n))) = self.dark.get(exposure as usize) {
-            if let Some((v, _)) = sum.sample(px.x, px.y) {
-                let k = 1.0 / *n as f32;
-                return [v[0] * k, v[1] * k, v[2] * k];
-            }
-        }
-        self.ctx.inputs.calibration.black_level
+        self.dark.get(exposure as usize).and_then(|d| d.at(px)).unwrap_or(self.ctx.inputs.calibration.black_level)
     }
 
     /// Add the frame of a planned shot.

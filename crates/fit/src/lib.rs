@@ -36,6 +36,7 @@ pub mod diffuse;
 pub mod geometric;
 pub mod ingest;
 pub mod lsq;
+pub mod mirror;
 pub mod partial;
 pub mod pipeline;
 pub mod points;

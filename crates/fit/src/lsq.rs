@@ -1,6 +1,7 @@
 //! Levenberg-Marquardt (the `levenberg-marquardt` crate) over a residual
 //! function whose Jacobian is taken by finite differences: the one adapter
-//! the analytic shape fits and the camera solve share.
+//! the analytic shape fits and the camera solve share. And the one
+//! one-dimensional search, [`golden_section`].
 
 use levenberg_marquardt::LeastSquaresProblem;
 use nalgebra::{DMatrix, DVector, Dyn, Owned};
@@ -103,4 +104,38 @@ mod tests {
         let v = finite_or(DVector::from_vec(vec![1.0, f64::NAN, f64::INFINITY]), 7.0);
         assert_eq!(v.as_slice(), &[1.0, 7.0, 7.0]);
     }
+}
+
+/// The minimum of `f` on `[lo, hi]` (`f` unimodal there) after `steps`
+/// golden-section steps, each shrinking the bracket by 0.618: the middle
+/// of the last bracket. In the caller's precision (`f32` or `f64`).
+pub fn golden_section<T>(mut f: impl FnMut(T) -> T, lo: T, hi: T, steps: usize) -> T
+where
+    T: Copy
+        + PartialOrd
+        + From<f32>
+        + std::ops::Add<Output = T>
+        + std::ops::Sub<Output = T>
+        + std::ops::Mul<Output = T>,
+{
+    let g = T::from(0.618_034);
+    let (mut lo, mut hi) = (lo, hi);
+    let (mut x1, mut x2) = (hi - g * (hi - lo), lo + g * (hi - lo));
+    let (mut f1, mut f2) = (f(x1), f(x2));
+    for _ in 0..steps {
+        if f1 < f2 {
+            hi = x2;
+            x2 = x1;
+            f2 = f1;
+            x1 = hi - g * (hi - lo);
+            f1 = f(x1);
+        } else {
+            lo = x1;
+            x1 = x2;
+            f1 = f2;
+            x2 = lo + g * (hi - lo);
+            f2 = f(x2);
+        }
+    }
+    T::from(0.5) * (lo + hi)
 }

@@ -363,27 +363,9 @@ fn fit_eta(table: &NdfTable, k_s: f32, o: Vec3, observed: &[f32], settings: &Fit
             })
             .sum()
     };
-    let (mut lo, mut hi) = (ETA_RANGE.0.ln(), ETA_RANGE.1.ln());
-    let g = 0.618_034f32;
-    let (mut x1, mut x2) = (hi - g * (hi - lo), lo + g * (hi - lo));
-    let (mut f1, mut f2) = (cost(x1), cost(x2));
     // 25 golden-section steps shrink the bracket on ln(eta) by 0.618^25, to 2e-5.
-    for _ in 0..25 {
-        if f1 < f2 {
-            hi = x2;
-            x2 = x1;
-            f2 = f1;
-            x1 = hi - g * (hi - lo);
-            f1 = cost(x1);
-        } else {
-            lo = x1;
-            x1 = x2;
-            f1 = f2;
-            x2 = lo + g * (hi - lo);
-            f2 = cost(x2);
-        }
-    }
-    let eta = (0.5 * (lo + hi)).exp();
+    let x = crate::lsq::golden_section(cost, ETA_RANGE.0.ln(), ETA_RANGE.1.ln(), 25);
+    let eta = x.exp();
     eta.is_finite().then_some(eta.clamp(ETA_RANGE.0, ETA_RANGE.1))
 }
 

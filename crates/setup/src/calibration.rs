@@ -49,6 +49,59 @@ pub struct Calibration {
     /// the rig file's camera is trusted.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub camera: Option<CameraCalibration>,
+    /// Where the LEDs are, as the geometric calibration's mirror scan
+    /// measured them; without it the rig file's bar is trusted.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub lights: Option<LightCalibration>,
+}
+
+/// The LEDs' positions in the sample frame of the camera calibration, from
+/// the highlights of a flat mirror in the sample holder
+/// (`capture --calibrate geometry`). LED `k` with the carriage commanded to
+/// `c` mm is at `led_mm[k] + c * travel_mm`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct LightCalibration {
+    /// When it was measured (`YYYYMMDDTHHMMSSZ`).
+    pub id: String,
+    /// Each LED's position with the carriage commanded to 0, mm, indexed by
+    /// LED number.
+    pub led_mm: Vec<glam::Vec3>,
+    /// The carriage's displacement per commanded millimetre (its length is
+    /// the gantry's true scale).
+    pub travel_mm: glam::Vec3,
+    /// LEDs whose highlights were measured; the others lie on the straight
+    /// line fitted through them, at their places along the bar.
+    pub measured: Vec<u8>,
+    pub highlights: u32,
+    /// Distance of the LEDs from the rays their highlights reflect, RMS and
+    /// largest, mm.
+    pub rms_mm: f32,
+    pub max_mm: f32,
+    /// What the mirror cannot see: the relative scale of the LEDs' distances
+    /// from the camera's mirror image, known from the bar's pitch and the
+    /// gantry's build tolerance to this standard deviation.
+    pub scale_sd: f32,
+    /// The factor by which the white scan, from how its light falls off
+    /// across the sample, scaled the mirror's LEDs and travel about the
+    /// camera's mirror image (1 before a white scan).
+    #[serde(default = "one")]
+    pub white_scale: f32,
+}
+
+fn one() -> f32 {
+    1.0
+}
+
+impl LightCalibration {
+    /// The direction the LEDs shine (pointing down): square to the bar they
+    /// are soldered to, whose plane holds the line of the measured LEDs and
+    /// the carriage's travel. `None` if those are not measured.
+    pub fn led_axis(&self) -> Option<glam::Vec3> {
+        let first = self.led_mm.get(*self.measured.first()? as usize)?;
+        let last = self.led_mm.get(*self.measured.last()? as usize)?;
+        let n = self.travel_mm.cross(*last - *first).try_normalize()?;
+        Some(if n.z > 0.0 { -n } else { n })
+    }
 }
 
 /// The camera's intrinsics and pose in the sample frame, from views of the
@@ -80,6 +133,23 @@ impl Calibration {
             reference_albedo: 1.0,
             residual_rms: 0.0,
             camera: None,
+            lights: None,
+        }
+    }
+
+    /// The direction the LEDs shine: as the mirror scan measured the bar,
+    /// else straight down.
+    pub fn led_axis(&self) -> glam::Vec3 {
+        self.lights.as_ref().and_then(LightCalibration::led_axis).unwrap_or(glam::Vec3::NEG_Z)
+    }
+
+    /// Where LED `k` of `bar` is with the carriage commanded to
+    /// `commanded_mm`: as the mirror scan measured it, else as the rig file
+    /// says.
+    pub fn light_position(&self, bar: &crate::geometry::LedBar, commanded_mm: f32, k: u8) -> glam::Vec3 {
+        match self.lights.as_ref().and_then(|l| l.led_mm.get(k as usize).map(|p| (p, l.travel_mm))) {
+            Some((&p, travel)) => p + commanded_mm * travel,
+            None => bar.led_position(commanded_mm, k),
         }
     }
 

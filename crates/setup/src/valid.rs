@@ -123,6 +123,23 @@ impl Calibration {
             RigGeometry { camera: c.camera, ..RigGeometry::default() }.validate()?;
             within("camera.rms_px", c.rms_px, 0.0, 2.0)?;
         }
+        if let Some(l) = &self.lights {
+            if l.led_mm.len() != self.led_scale.len() {
+                return Err(Invalid::new(
+                    "lights.led_mm",
+                    format!("{} positions", l.led_mm.len()),
+                    format!("one per LED ({})", self.led_scale.len()),
+                ));
+            }
+            for (k, &p) in l.led_mm.iter().enumerate() {
+                finite3(&format!("lights.led_mm[{k}]"), p, REACH_MM)?;
+            }
+            finite3("lights.travel_mm", l.travel_mm, 2.0)?;
+            // A gantry whose true scale is 10% from its firmware's is
+            // misconfigured, not out of calibration.
+            within("lights.travel_mm length", l.travel_mm.length(), 0.9, 1.1)?;
+            within("lights.rms_mm", l.rms_mm, 0.0, 5.0)?;
+        }
         for k in 0..3 {
             within("black_level", self.black_level[k], 0.0, 1e6)?;
             within("read_noise_dn", self.read_noise_dn[k], 0.0, 1e6)?;
@@ -191,5 +208,33 @@ mod tests {
         let mut c = Calibration::nominal(40, 1.0, 0.0);
         c.flat_field = vec![1.0, -0.5];
         assert_eq!(c.validate().unwrap_err().field, "flat_field[1]");
+    }
+
+    #[test]
+    fn impossible_leds_are_refused() {
+        let bar = crate::geometry::RigGeometry::default().bar;
+        let good = crate::calibration::LightCalibration {
+            id: "t".into(),
+            led_mm: (0..40).map(|k| bar.led_position(0.0, k)).collect(),
+            travel_mm: Vec3::X,
+            measured: (10..30).collect(),
+            highlights: 260,
+            rms_mm: 0.01,
+            max_mm: 0.02,
+            scale_sd: 0.0015,
+            white_scale: 1.0,
+        };
+        let with = |l: crate::calibration::LightCalibration| Calibration {
+            lights: Some(l),
+            ..Calibration::nominal(40, 1.0, 0.0)
+        };
+        with(good.clone()).validate().unwrap();
+        let short = crate::calibration::LightCalibration { led_mm: good.led_mm[..20].to_vec(), ..good.clone() };
+        assert_eq!(with(short).validate().unwrap_err().field, "lights.led_mm");
+        let mut nan = good.clone();
+        nan.led_mm[7].y = f32::NAN;
+        assert_eq!(with(nan).validate().unwrap_err().field, "lights.led_mm[7]");
+        let long = crate::calibration::LightCalibration { travel_mm: 1.2 * Vec3::X, ..good };
+        assert_eq!(with(long).validate().unwrap_err().field, "lights.travel_mm length");
     }
 }
