@@ -9,7 +9,8 @@
 # `vivid` test target of crates/rig (`test = false`: not run by `cargo test`),
 # then the hardware capture path end to end (scripts/vm/guest-capture.sh:
 # `capture` with a hardware rig file, the emulated MCU on a pseudo-terminal,
-# vivid as the camera), and prints both exit statuses; anything else, a
+# vivid as the camera; the geometric scan up to its first prompt), and
+# prints both exit statuses; anything else, a
 # guest that does not boot included, fails this script.
 #
 # Usage: bash scripts/vm-test.sh [extra test-binary arguments, e.g. a filter]

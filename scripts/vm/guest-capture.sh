@@ -30,6 +30,17 @@ calib=/etc/vivid-calib
 capture --rig $rig --calib-dir $calib --calibrate dark >/tmp/dark.log 2>&1 || fail "capture --calibrate dark exited $?: $(tail -5 /tmp/dark.log)"
 cat /tmp/dark.log
 grep -q "dark frames are not uniform" /tmp/dark.log || fail "a picture was taken for dark frames without a warning"
+# The geometric scan on the hardware path as far as vivid allows: it
+# connects, homes, sets the camera to the scan's exposure, and then needs
+# an operator to place the target; with no terminal it must refuse, saying
+# so, and save nothing.
+saved=$(find $calib -name '*.json' | wc -l)
+capture --rig $rig --calib-dir $calib --calibrate geometry </dev/null >/tmp/geometry.log 2>&1 \
+  && fail "the geometric scan ran with no operator: $(tail -5 /tmp/geometry.log)"
+grep -q "needs an operator at the rig" /tmp/geometry.log \
+  || fail "the geometric scan did not say it needs an operator: $(tail -5 /tmp/geometry.log)"
+[ "$(find $calib -name '*.json' | wc -l)" = "$saved" ] || fail "a refused geometric scan saved a calibration"
+echo "vm: the geometric scan refused without an operator, nothing saved"
 capture --rig $rig --calib-dir $calib --sample vivid-bars --out /tmp/cap \
   --quality fast --steps 4 --led-stride 10 --grid 8 || fail "capture exited $?"
 kill $mcu

@@ -432,7 +432,7 @@ async fn place(camera: &mut crate::session::RigCamera, what: Holder<'_>, rep: &m
 async fn operator_confirms(what: &str) -> Result<()> {
     use std::io::IsTerminal;
     if !std::io::stdin().is_terminal() {
-        bail!("the geometric calibration needs an operator to place the target ({what}): run it in a terminal");
+        bail!("the geometric calibration needs an operator at the rig ({what}): run it in a terminal");
     }
     let prompt = format!("{what}; then press Enter");
     tokio::task::spawn_blocking(move || {
