@@ -533,6 +533,7 @@ fn capture_calibrates_the_geometry_and_uses_it() {
     for &k in &lights.measured {
         let t = to_rig.transpose() * (truth.led_position(truth.bar_x_mm(0.0, true), k) - origin);
         let e = (lights.led_mm[k as usize] - t).length();
+        eprintln!("LED {k}: {e:.3} mm from where it is");
         // With the true camera the mirror and white scans place these LEDs
         // within 0.1 mm (tests/geometric.rs). Here the calibrated camera,
         // good to 0.3 px (0.2 mm on the mirror) as checked above, sees the

@@ -166,7 +166,7 @@ fn led_errors(
     let back = to_rig.transpose();
     let true_at = |c: f32, k: u8| back * (truth.led_position(truth.bar_x_mm(c, true), k) - origin);
     let c = camera.position_mm;
-    let image = glam::Vec3::new(c.x, c.y, -c.z);
+    let image = fit::mirror::camera_image(c);
     let errs = (0..40u8)
         .map(|k| {
             let t = true_at(0.0, k);
@@ -224,7 +224,7 @@ fn check_leds(
     // Along it, what the priors leave: the scale's uncertainty times the
     // LED's distance from the camera's mirror image (4 standard deviations).
     let c = camera.position_mm;
-    let image = glam::Vec3::new(c.x, c.y, -c.z);
+    let image = fit::mirror::camera_image(c);
     for &(k, along, across) in &errs {
         let reach = 4.0 * sol.scale_sd * (back_of(truth, k) - image).length();
         assert!(along.abs() <= reach, "LED {k}: {along} mm along (bound {reach})");

@@ -5,6 +5,7 @@ use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
 use fit::{FitContext, FitInputs};
+use frame::Frame;
 use rig::camera::{Camera, CameraSettings};
 use rig::clock;
 use rig::mcu::{Connector, Rig};
@@ -26,13 +27,7 @@ pub async fn dark<K: Connector, C: Camera>(
 ) -> Result<Calibration> {
     rep.stage("calibrate", "dark scan: all LEDs off");
     crate::session::configure_camera(camera, settings, rep).await?;
-    rig.all_off().await?;
-    let off_at = clock::to_mono(tokio::time::Instant::now());
-    let mut frames = Vec::new();
-    for _ in 0..DARK_FRAMES {
-        frames.push(camera.frame_after(off_at, Duration::from_secs(5)).await?);
-        rig.keepalive().await?;
-    }
+    let frames = dark_frames(rig, camera, DARK_FRAMES).await?;
     let Some(stats) = fit::calibrate::dark_statistics(&frames) else { bail!("the dark scan gave no pixels") };
     rep.stage("calibrate", format!("black level {:.1?} DN, read noise {:.2?} DN", stats.black_level, stats.read_noise));
     if let Some(why) = stats.light_leak() {
@@ -86,12 +81,8 @@ pub async fn white<K: Connector, C: Camera>(
     // Dark frames at the scan's exposure: the room's light and the
     // sensor's dark current, pixel by pixel, which the white frames carry
     // and a black level does not remove.
-    rig.all_off().await?;
-    let off = clock::to_mono(tokio::time::Instant::now());
-    for _ in 0..DARK_FRAMES {
-        let f = camera.frame_after(off, Duration::from_secs(5)).await?;
+    for f in dark_frames(rig, camera, DARK_FRAMES).await? {
         acc.push_dark(&f);
-        rig.keepalive().await?;
     }
     let shots = plan.shots();
     let total = shots.len() as u64;
@@ -103,12 +94,9 @@ pub async fn white<K: Connector, C: Camera>(
             rig.move_to(s.position_um).await?;
             at = Some(s.position_um);
         }
-        let lit = rig.led_on(s.led).await?;
-        let f = camera.frame_after(clock::to_mono(lit), Duration::from_secs(5)).await?;
+        let f = lit_frame(rig, camera, s.led).await?;
         tokio::task::block_in_place(|| acc.push_shot(s, &f));
-        let done = k as u64 + 1;
-        let rate = done as f64 / started.elapsed().as_secs_f64().max(1e-9);
-        rep.emit(Event::Frames { done, total, rate_hz: rate, eta_s: (total - done) as f64 / rate.max(1e-9) });
+        frames_done(rep, k as u64 + 1, total, started);
     }
     rig.all_off().await?;
     let solved = tokio::task::block_in_place(|| acc.solve(&nominal, crate::paths::utc_stamp()))
@@ -142,6 +130,42 @@ pub async fn white<K: Connector, C: Camera>(
         ),
     );
     Ok(solved)
+}
+
+/// How long a scan waits for a frame before it gives up on the camera.
+const FRAME_TIMEOUT: Duration = Duration::from_secs(5);
+
+/// `n` frames with every LED off.
+async fn dark_frames<K: Connector, C: Camera>(rig: &mut Rig<K>, camera: &mut C, n: u32) -> Result<Vec<Frame>> {
+    rig.all_off().await?;
+    let off = clock::to_mono(tokio::time::Instant::now());
+    let mut frames = Vec::with_capacity(n as usize);
+    for _ in 0..n {
+        frames.push(camera.frame_after(off, FRAME_TIMEOUT).await?);
+        rig.keepalive().await?;
+    }
+    Ok(frames)
+}
+
+/// The frame taken with LED `led` lit (the carriage where it is).
+async fn lit_frame<K: Connector, C: Camera>(rig: &mut Rig<K>, camera: &mut C, led: u8) -> Result<Frame> {
+    let lit = rig.led_on(led).await?;
+    Ok(camera.frame_after(clock::to_mono(lit), FRAME_TIMEOUT).await?)
+}
+
+/// Add `weight` times `f` to `luma`; a frame of another size than the
+/// camera's is refused.
+fn add_frame(luma: &mut fit::geometric::Luma, f: &Frame, weight: f32) -> Result<()> {
+    if !luma.add(f, weight) {
+        bail!("the camera delivered {}x{} frames, not {}x{}", f.width, f.height, luma.width, luma.height);
+    }
+    Ok(())
+}
+
+/// Report `done` of a scan's `total` frames, taken since `started`.
+fn frames_done(rep: &mut Reporter, done: u64, total: u64, started: std::time::Instant) {
+    let rate = done as f64 / started.elapsed().as_secs_f64().max(1e-9);
+    rep.emit(Event::Frames { done, total, rate_hz: rate, eta_s: total.saturating_sub(done) as f64 / rate.max(1e-9) });
 }
 
 /// The white scale `base`'s LEDs already had (a white scan after another
@@ -209,28 +233,17 @@ pub async fn geometry<K: Connector>(
     for (v, ask) in TARGET_VIEWS.iter().enumerate() {
         place(camera, Holder::Target { v, ask, target: &target }, rep).await?;
         let mut luma = Luma::new(filed.camera.width, filed.camera.height);
-        rig.all_off().await?;
-        let off = clock::to_mono(tokio::time::Instant::now());
-        for _ in 0..dark {
-            let f = camera.frame_after(off, Duration::from_secs(5)).await?;
-            if !luma.add(&f, -(lit as f32) / dark as f32) {
-                bail!("the camera delivered {}x{} frames, not {}x{}", f.width, f.height, luma.width, luma.height);
-            }
+        for f in dark_frames(rig, camera, dark).await? {
+            add_frame(&mut luma, &f, -(lit as f32) / dark as f32)?;
             done += 1;
-            rig.keepalive().await?;
         }
         for &x in &positions_mm {
             rig.all_off().await?;
             rig.move_to((x * 1000.0).round() as i32).await?;
             for &led in &leds {
-                let lit = rig.led_on(led).await?;
-                let f = camera.frame_after(clock::to_mono(lit), Duration::from_secs(5)).await?;
-                if !luma.add(&f, 1.0) {
-                    bail!("the camera delivered {}x{} frames, not {}x{}", f.width, f.height, luma.width, luma.height);
-                }
+                add_frame(&mut luma, &lit_frame(rig, camera, led).await?, 1.0)?;
                 done += 1;
-                let rate = done as f64 / started.elapsed().as_secs_f64().max(1e-9);
-                rep.emit(Event::Frames { done, total, rate_hz: rate, eta_s: (total - done) as f64 / rate.max(1e-9) });
+                frames_done(rep, done, total, started);
             }
         }
         rig.all_off().await?;
@@ -311,16 +324,10 @@ async fn mirror_scan<K: Connector>(
     }
     let (w, h) = (filed.camera.width, filed.camera.height);
     let mut dark = Luma::new(w, h);
-    rig.all_off().await?;
-    let off = clock::to_mono(tokio::time::Instant::now());
     let mut top = 0.0f32;
-    for _ in 0..DARK_FRAMES {
-        let f = camera.frame_after(off, Duration::from_secs(5)).await?;
+    for f in dark_frames(rig, camera, DARK_FRAMES).await? {
         top = ((1u64 << f.bit_depth.min(32)) - 1) as f32;
-        if !dark.add(&f, -1.0 / DARK_FRAMES as f32) {
-            bail!("the camera delivered {}x{} frames, not {w}x{h}", f.width, f.height);
-        }
-        rig.keepalive().await?;
+        add_frame(&mut dark, &f, -1.0 / DARK_FRAMES as f32)?;
     }
     // Saturated pixels (within a few read-noise widths of the top code,
     // less the black level the dark frames removed) carry no shape.
@@ -338,18 +345,13 @@ async fn mirror_scan<K: Connector>(
         rig.all_off().await?;
         rig.move_to((x * 1000.0).round() as i32).await?;
         for &led in &leds {
-            let lit = rig.led_on(led).await?;
-            let f = camera.frame_after(clock::to_mono(lit), Duration::from_secs(5)).await?;
             let mut img = dark.clone();
-            if !img.add(&f, 1.0) {
-                bail!("the camera delivered {}x{} frames, not {w}x{h}", f.width, f.height);
-            }
+            add_frame(&mut img, &lit_frame(rig, camera, led).await?, 1.0)?;
             if let Some(pixel) = tokio::task::block_in_place(|| find_highlight(&img, ceiling)) {
                 found.push(Highlight { led, commanded_mm: x, pixel });
             }
             done += 1;
-            let rate = done as f64 / started.elapsed().as_secs_f64().max(1e-9);
-            rep.emit(Event::Frames { done, total, rate_hz: rate, eta_s: (total - done) as f64 / rate.max(1e-9) });
+            frames_done(rep, done, total, started);
         }
     }
     rig.all_off().await?;

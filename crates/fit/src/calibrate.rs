@@ -162,8 +162,7 @@ impl<'a> WhiteAccumulator<'a> {
     /// the LEDs the mirror measured.
     pub fn solve(&self, base: &Calibration, id: String) -> Option<Calibration> {
         let (nq, np) = (self.ctx.n_lights(), self.ctx.n_points());
-        let cam = self.ctx.inputs.geometry.camera.position_mm;
-        let centre = Vec3::new(cam.x, cam.y, -cam.z);
+        let centre = crate::mirror::camera_image(self.ctx.inputs.geometry.camera.position_mm);
         let mut data = self.log_data(centre, 1.0);
         if data.iter().filter(|d| d.0.is_finite()).count() < (nq + np) * 2 {
             return None;

@@ -84,20 +84,31 @@ pub struct Highlight {
     pub pixel: Vec2,
 }
 
+/// The camera at `camera_mm` mirrored in the plane `z = 0`: every ray a
+/// flat mirror there reflects into the camera passes through it.
+pub fn camera_image(camera_mm: Vec3) -> Vec3 {
+    Vec3::new(camera_mm.x, camera_mm.y, -camera_mm.z)
+}
+
+/// Where a camera at `camera_mm` sees a point `led` (above `z = 0`) in a
+/// flat mirror at `z = 0`: on the line from the camera's mirror image to it.
+pub fn mirror_point(camera_mm: Vec3, led: Vec3) -> Vec3 {
+    let image = camera_image(camera_mm);
+    image + (camera_mm.z / (camera_mm.z + led.z)) * (led - image)
+}
+
 /// The carriage positions of the mirror scan, in increasing order: where
 /// the highlight of an LED over the middle of the sample lands on the
 /// mirror at least [`EDGE_MM`] from its edge, seen past the bar, every
 /// [`STEP_MM`], by the rig file's geometry.
 pub fn scan_positions(g: &RigGeometry) -> Vec<f32> {
     let c = g.camera.position_mm;
-    let image = Vec3::new(c.x, c.y, -c.z);
     let half = 0.5 * g.sample.width_mm - EDGE_MM;
     let steps = ((g.gantry.travel_max_mm - g.gantry.travel_min_mm) / STEP_MM).floor().max(0.0) as u32;
     (0..=steps)
         .map(|k| g.gantry.travel_min_mm + k as f32 * STEP_MM)
         .filter(|&x| {
-            let led = Vec3::new(x, 0.0, g.bar.height_mm);
-            let m = image + (c.z / (c.z + g.bar.height_mm)) * (led - image);
+            let m = mirror_point(c, Vec3::new(x, 0.0, g.bar.height_mm));
             m.x.abs() <= half && !g.bar.occludes(x, m, c, 2.0)
         })
         .collect()
@@ -367,13 +378,6 @@ mod tests {
     use rand::{Rng, SeedableRng};
 
     use super::*;
-
-    /// Where LED `l` is seen in the mirror `z = 0` by a camera at `c`: on
-    /// the line from the camera's mirror image to the LED.
-    fn mirror_point(c: Vec3, l: Vec3) -> Vec3 {
-        let image = Vec3::new(c.x, c.y, -c.z);
-        image + (c.z / (c.z + l.z)) * (l - image)
-    }
 
     #[test]
     fn exact_highlights_give_the_leds_and_travel_back() {
