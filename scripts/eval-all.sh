@@ -4,11 +4,14 @@
 # `capture --sim-material`): one simulated capture each, then `refl eval
 # --json`. Prints one table row per sample and keeps each eval JSON.
 #
-#   bash scripts/eval-all.sh [--quality Q] [--bin DIR] [--sim-rig RIG]
-#                            [--no-geometric-calibration] [OUT]
+#   bash scripts/eval-all.sh [--quality Q] [--bin DIR] [--rig FILE]
+#                            [--sim-rig RIG] [--no-geometric-calibration] [OUT]
 #
-# --sim-rig picks the simulated physical rig (`ideal`, `perturbed:SEED`;
-# default the rig file's, see RIGFILE.md). --no-geometric-calibration
+# --rig names a rig file (default the embedded simulated rig; e.g.
+# scripts/rigs/sim-no-patches.toml, the same rig without the reference
+# patches that LED drift is corrected from). --sim-rig picks the simulated
+# physical rig (`ideal`, `perturbed:SEED`; default the rig file's, see
+# RIGFILE.md). --no-geometric-calibration
 # calibrates the rig with the dark and white scans only, so that every
 # capture trusts the rig file's camera (the figures "for scale" of an
 # uncalibrated rig).
@@ -26,7 +29,8 @@ while [ $# -gt 0 ]; do
   case "$1" in
     --quality) quality="$2"; shift 2 ;;
     --bin) bin="$2"; shift 2 ;;
-    --sim-rig) rig=(--sim-rig "$2"); shift 2 ;;
+    --sim-rig) rig+=(--sim-rig "$2"); shift 2 ;;
+    --rig) rig+=(--rig "$(cd "$(dirname "$2")" && pwd)/$(basename "$2")"); shift 2 ;;
     --no-geometric-calibration) no_geometry=1; shift ;;
     *) break ;;
   esac

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # What each part of a perturbed simulated rig costs a fit: the same
 # captures on the ideal rig, on `perturbed:SEED` with one part perturbed at
-# a time (camera, leds, gantry, sample, sensor; RIGFILE.md), and with all,
+# a time (camera, leds, gantry, sample, sensor, drift; RIGFILE.md), and with all,
 # each calibrated as `capture` does on first use. One row per (sample, rig):
 # NDF error on observed cells and render errors of the synthesized model
 # and of `auto` (`refl eval --json`).
@@ -29,7 +29,7 @@ out="$(absolute_dir "$out")"
 export RUST_LOG=warn
 printf '%-14s %-36s %8s %8s %8s\n' sample rig ndf_obs synth auto
 for sample in "$@"; do
-  for rig in ideal $(for p in camera leds gantry sample sensor; do echo "perturbed:$seed:$p"; done) "perturbed:$seed"; do
+  for rig in ideal $(for p in camera leds gantry sample sensor drift; do echo "perturbed:$seed:$p"; done) "perturbed:$seed"; do
     dir="$out/$sample-${rig//[:+]/-}"
     rm -rf "$dir" "$dir.data"
     REFLECTOMETER_DATA="$dir.data" "$bin/capture" --quality "$quality" --no-daemon --sample "$sample" \

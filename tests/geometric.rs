@@ -41,7 +41,7 @@ fn the_camera_of_a_perturbed_rig_is_recovered() {
     // Three drawn rigs, and one whose only faults are the sensor's and the
     // room's (hot pixels, dark current, ambient light: specks a corner
     // detector can take for corners).
-    let sensor_only = sim::Tolerances::default().keeping(false, false, false, false, true);
+    let sensor_only = sim::Tolerances::default().keeping(false, false, false, false, true, false);
     let filed = RigGeometry::default();
     let rigs = [
         (1u64, sim::RigTruth::perturbed(&filed, 1)),

@@ -149,6 +149,11 @@ struct Pixel {
 /// Albedo of what surrounds the sample in view (a matte black mount).
 const SURROUND_ALBEDO: f32 = 0.03;
 
+/// Albedo of the rig's white reference patches beside the sample
+/// (`setup::ReferencePatch`): a matte white such as sintered PTFE. The
+/// host does not know it (it measures the patches against the white scan).
+pub const REFERENCE_ALBEDO: f32 = 0.8;
+
 pub struct SimCamera {
     cfg: SimCameraConfig,
     world: World,
@@ -161,6 +166,10 @@ pub struct SimCamera {
     requests: u64,
     started: Instant,
     dark_counter: u64,
+    /// Seconds the LEDs have been lit in all (the bar's warmth:
+    /// [`RigTruth::drift`]): since this camera was made, on top of what
+    /// [`SimCamera::set_on_time_s`] started it from.
+    on_s: f64,
     unplugged_until: Option<Instant>,
     fault_rng: Pcg64,
     pub frames_rendered: u64,
@@ -186,6 +195,7 @@ impl SimCamera {
             requests: 0,
             started: Instant::now(),
             dark_counter: 0,
+            on_s: 0.0,
             unplugged_until: None,
             fault_rng,
             frames_rendered: 0,
@@ -215,7 +225,12 @@ impl SimCamera {
         // it is `pi f(n, o) E` for a diffuse one; the BRDF at normal
         // incidence stands in for its hemispherical mean.
         let ambient_e = truth.ambient_irradiance * std::f32::consts::PI;
-        let surround: Arc<PointMaterial> = Arc::new(PointMaterial::Diffuse { kd: Vec3::splat(SURROUND_ALBEDO) });
+        let surround = PointMaterial::Diffuse { kd: Vec3::splat(SURROUND_ALBEDO) };
+        let white = PointMaterial::Diffuse { kd: Vec3::splat(REFERENCE_ALBEDO) };
+        // The reference patches are level with the sample's surface, on
+        // the holder; something propped up in it hides them from this
+        // model (the calibration target's views, which do not use them).
+        let patches: &[setup::ReferencePatch] = if truth.propped.is_none() { &truth.geometry.references } else { &[] };
         let mut resp_rng = Pcg64::seed_from_u64(cfg.seed ^ 0x9e1);
         // A non-finite spread (a broken sensor model) reads as none.
         let prnu = Normal::new(1.0f32, cfg.sensor.prnu.max(0.0)).ok();
@@ -232,7 +247,15 @@ impl SimCamera {
                 match cam.pixel_to(px, centre, normal) {
                     Some(p) => {
                         let q = (to_sample * (p - centre)).truncate();
-                        let at = |q: Vec2| if sample.contains(q) { material.at(q) } else { (*surround).clone() };
+                        let at = |q: Vec2| {
+                            if sample.contains(q) {
+                                material.at(q)
+                            } else if patches.iter().any(|r| r.contains(q, 0.0)) {
+                                white.clone()
+                            } else {
+                                surround.clone()
+                            }
+                        };
                         let brdf = Arc::new(match at(q) {
                             // A pixel integrates its whole footprint: a
                             // diffuse texture (a print, an edge) is averaged
@@ -300,13 +323,16 @@ impl SimCamera {
             // An instantaneous exposure (fast mode): the LED lit at t0.
             self.world.led_at(t0).map(|(l, c)| (l, c, t0, t0)).into_iter().collect()
         };
+        let mut on_s = 0.0;
         for (led, current, s, e) in intervals {
             let frac = if span > 0.0 { ((e - s).as_secs_f64() / span) as f32 } else { 1.0 };
             let mid = s + (e - s) / 2;
             let commanded_mm = (self.world.position_at(mid, self.cfg.rest_um) / 1000.0) as f32;
             let bar_x_mm = truth.bar_x_mm(commanded_mm, self.world.forward_at(mid));
             lights.push((truth.led_position(bar_x_mm, led), bar_x_mm, self.led_intensity(led, current) * frac));
+            on_s += frac as f64 * self.exposure_us as f64 * 1e-6;
         }
+        self.on_s += on_s;
         let bar_um = self.world.position_at(t0, self.cfg.rest_um).round() as i64;
         let key = self.noise_key(bar_um, self.world.led_at(t0).map(|l| l.0));
         self.render_lights(&lights, key, t0, t1, sequence)
@@ -326,6 +352,9 @@ impl SimCamera {
             })
             .into_iter()
             .collect();
+        if led.is_some() {
+            self.on_s += self.exposure_us as f64 * 1e-6;
+        }
         let key = self.noise_key(position_um as i64, led);
         let now = Instant::now();
         self.sequence += 1;
@@ -333,9 +362,29 @@ impl SimCamera {
         self.render_lights(&lights, key, now, now, seq)
     }
 
+    /// LED `led`'s intensity at `current_ma`, as warm as the bar now is.
     fn led_intensity(&self, led: u8, current_ma: u16) -> f32 {
         self.cfg.leds.scale.get(led as usize).copied().unwrap_or(0.0) * current_ma as f32
             / self.cfg.leds.nominal_current_ma.max(1) as f32
+            * self.cfg.truth.drift(led, self.on_s)
+    }
+
+    /// Seconds the LEDs have been lit in all: the bar's warmth.
+    pub fn on_time_s(&self) -> f64 {
+        self.on_s
+    }
+
+    /// Start from a bar that has had `on_s` seconds of LED light (another
+    /// session's, a moment ago on the same bench).
+    pub fn set_on_time_s(&mut self, on_s: f64) {
+        self.on_s = on_s.max(0.0);
+    }
+
+    /// LED `led`'s intensity now relative to a cold bar (the drift a
+    /// frame rendered now carries; tests compare the fitter's estimate with
+    /// it).
+    pub fn drift_now(&self, led: u8) -> f32 {
+        self.cfg.truth.drift(led, self.on_s)
     }
 
     /// Noise stream of a shot: its physical identity, not the order of requests.

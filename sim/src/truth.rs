@@ -21,15 +21,17 @@
 //!   direction of its last move);
 //! - the sample's height above the nominal plane and its tilt;
 //! - light in the room: an ambient irradiance on everything in view;
-//! - the sensor's dark current (per pixel, with a few hot pixels).
+//! - the sensor's dark current (per pixel, with a few hot pixels);
+//! - the LEDs' intensity drift as the bar warms ([`RigTruth::drift`]).
 //!
 //! The LEDs' axes are square to the bar, tilting with its roll
 //! ([`RigTruth::led_axis`]).
 //!
-//! Not modelled: LED intensity drift with on-time (the LEDs' spread and
-//! emission profile are [`crate::camera::LedTruth`]'s), and the bar's
-//! shadow box tilting with it (the occluder moves with the bar's height and
-//! the carriage's true position).
+//! Not modelled: the bar cooling while its LEDs are off (a pause, or the
+//! time between two runs of the simulator, which starts cold), and the
+//! bar's shadow box tilting with it (the occluder moves with the bar's
+//! height and the carriage's true position). The LEDs' spread and emission
+//! profile are [`crate::camera::LedTruth`]'s.
 
 use glam::{Mat3, Vec2, Vec3};
 use rand::{Rng, SeedableRng};
@@ -50,6 +52,13 @@ pub fn target_placements() -> [Option<(Mat3, Vec3)>; 4] {
         Some((Mat3::from_rotation_x(-0.35), Vec3::new(2.0, -4.0, 12.0))),
     ]
 }
+
+/// Seconds of LED on-time (all LEDs together) over which the bar warms by
+/// 63% of the way to its steady temperature. An assumed figure, not a
+/// measured one: of the order of a small heat-sunk bar, and short enough
+/// that a capture of a few thousand 20 ms shots drifts by much of its
+/// range (what the drift correction must then undo).
+pub const WARMUP_ON_S: f64 = 60.0;
 
 /// The largest error of each kind a perturbed rig has. Each error is drawn
 /// normal with a standard deviation of half its tolerance and clipped at
@@ -87,13 +96,16 @@ pub struct Tolerances {
     pub hot_pixel_fraction: f32,
     /// A hot pixel's dark current, electrons per second.
     pub hot_pixel_e_s: f32,
+    /// The largest loss of an LED's intensity once the bar is warm; each
+    /// LED's loss is drawn uniform in `[led_drift / 2, led_drift]`.
+    pub led_drift: f32,
 }
 
 impl Tolerances {
     /// These tolerances with every error of the parts not kept set to
     /// zero (the draw is otherwise the same: each error keeps its place in
     /// the seed's sequence).
-    pub fn keeping(self, camera: bool, leds: bool, gantry: bool, sample: bool, sensor: bool) -> Self {
+    pub fn keeping(self, camera: bool, leds: bool, gantry: bool, sample: bool, sensor: bool, drift: bool) -> Self {
         let z = |keep: bool, v: f32| if keep { v } else { 0.0 };
         Self {
             camera_position_mm: z(camera, self.camera_position_mm),
@@ -113,6 +125,7 @@ impl Tolerances {
             dark_current_e_s: z(sensor, self.dark_current_e_s),
             hot_pixel_fraction: z(sensor, self.hot_pixel_fraction),
             hot_pixel_e_s: z(sensor, self.hot_pixel_e_s),
+            led_drift: z(drift, self.led_drift),
         }
     }
 }
@@ -139,6 +152,10 @@ impl Default for Tolerances {
             dark_current_e_s: 50.0,
             hot_pixel_fraction: 1e-4,
             hot_pixel_e_s: 20_000.0,
+            // White LEDs lose of the order of 0.3% of their output per
+            // kelvin of junction temperature; a warm bar is some kelvin
+            // above a cold one.
+            led_drift: 0.04,
         }
     }
 }
@@ -172,6 +189,9 @@ pub struct RigTruth {
     /// (pixel index, rate).
     pub dark_current_e_s: f32,
     pub hot_pixels: Vec<(u32, f32)>,
+    /// Each LED's relative loss of intensity once the bar is warm (empty:
+    /// no drift).
+    pub led_drift: Vec<f32>,
     /// What lies in the sample holder is propped up off the sample's
     /// surface (a calibration target on a wedge): its frame's rotation and
     /// origin in the sample surface's frame.
@@ -195,6 +215,7 @@ impl RigTruth {
             ambient_irradiance: 0.0,
             dark_current_e_s: 0.0,
             hot_pixels: Vec::new(),
+            led_drift: Vec::new(),
             propped: None,
         }
     }
@@ -250,6 +271,8 @@ impl RigTruth {
         let hot_pixels = (0..n_hot)
             .map(|_| (rng.random_range(0..n_pixels.max(1)), tol.hot_pixel_e_s * (0.5 + rng.random::<f32>())))
             .collect();
+        let led_drift =
+            (0..geometry.bar.n_leds).map(|_| tol.led_drift.max(0.0) * (0.5 + 0.5 * rng.random::<f32>())).collect();
 
         Self {
             geometry: g,
@@ -264,8 +287,18 @@ impl RigTruth {
             ambient_irradiance,
             dark_current_e_s,
             hot_pixels,
+            led_drift,
             propped: None,
         }
+    }
+
+    /// LED `k`'s intensity relative to a cold bar after the LEDs have
+    /// been lit for `on_s` seconds in all: the bar's temperature rises
+    /// toward its steady state with a time constant of [`WARMUP_ON_S`]
+    /// of on-time, and each LED loses its own fraction of output with it.
+    pub fn drift(&self, k: u8, on_s: f64) -> f32 {
+        let warm = 1.0 - (-on_s / WARMUP_ON_S).exp();
+        1.0 - self.led_drift.get(k as usize).copied().unwrap_or(0.0) * warm as f32
     }
 
     /// The carriage's physical position (the bar's centre line, mm) when
@@ -359,7 +392,16 @@ mod tests {
             let x = t.bar_x_mm(100.0, true);
             assert!((x - 100.0).abs() <= tol.gantry_offset_mm + 100.0 * tol.gantry_scale + tol.backlash_mm, "{x}");
             assert!(t.bar_x_mm(100.0, false) - x <= tol.backlash_mm + 1e-6, "backlash at most its tolerance");
+            for k in 0..g.bar.n_leds {
+                // Cold, no drift; warming, the LED dims monotonically to
+                // between half its tolerance and all of it.
+                assert_eq!(t.drift(k, 0.0), 1.0);
+                assert!(t.drift(k, 30.0) > t.drift(k, 300.0), "{seed}: LED {k}");
+                let loss = 1.0 - t.drift(k, 1e6);
+                assert!((0.5 * tol.led_drift - 1e-6..=tol.led_drift + 1e-6).contains(&loss), "{seed}: LED {k} {loss}");
+            }
         }
+        assert_eq!(ideal.drift(3, 1e6), 1.0, "an ideal rig does not drift");
         // Different seeds give different rigs; the same seed the same.
         assert_ne!(RigTruth::perturbed(&g, 1), RigTruth::perturbed(&g, 2));
         assert_eq!(RigTruth::perturbed(&g, 3), RigTruth::perturbed(&g, 3));

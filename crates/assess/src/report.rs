@@ -91,6 +91,10 @@ pub struct FitReport {
     pub pooling: Option<fit::pooled::PoolStats>,
     pub analytic: Vec<AnalyticReport>,
     pub model_choice: Option<fit::select::SelectionSummary>,
+    /// What the LED drift correction did (absent on a rig without
+    /// reference patches).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub drift: Option<fit::drift::DriftSummary>,
 }
 
 /// One analytic model's fit.

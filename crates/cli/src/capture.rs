@@ -144,6 +144,15 @@ async fn calibration_for(
                     }
                 }
             }
+            if !geometry.references.is_empty()
+                && c.drift_reference.as_ref().is_none_or(|d| d.patches != geometry.references)
+            {
+                rep.warn(
+                    "the white calibration has no readings of the rig file's reference patches (it predates them, or \
+                     they moved): the LEDs' drift during the capture is not corrected (run `capture --calibrate \
+                     white`; see CALIBRATION.md)",
+                );
+            }
             c.validate().map_err(|e| {
                 crate::usage(anyhow!(
                     "{}: {e}; run `capture --calibrate dark` and `capture --calibrate white` again",

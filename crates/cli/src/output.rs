@@ -121,6 +121,24 @@ pub async fn finish_fit(
                 ),
             );
         }
+        if let Some(d) = &out.drift {
+            if d.lights_corrected == 0 {
+                rep.warn(format!(
+                    "LED drift not corrected: {} of the rig's {} reference patches seen by enough pixels, no reading \
+                     usable against the calibration (CALIBRATION.md, \"LED drift\")",
+                    d.patches_read, d.patches
+                ));
+            } else {
+                rep.stage(
+                    "fit",
+                    format!(
+                        "LED drift: {} of {} lights corrected from {} reference patches; intensity {:.3}-{:.3} of the \
+                         white scan's (mean {:.3})",
+                        d.lights_corrected, d.lights, d.patches_read, d.lowest, d.highest, d.mean
+                    ),
+                );
+            }
+        }
         if let Some(ps) = &out.pool {
             rep.stage(
                 "fit",
@@ -151,6 +169,7 @@ pub async fn finish_fit(
                 })
                 .collect(),
             model_choice: out.selection.as_ref().map(|s| s.summary.clone()),
+            drift: out.drift,
         });
         rep.stage("fit", format!("material written to {}", dir.display()));
         let t = Instant::now();

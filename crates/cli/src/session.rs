@@ -36,10 +36,20 @@ impl std::fmt::Debug for Session {
     }
 }
 
+/// The simulated light bar's warmth (seconds of LED light it has had), kept
+/// from one session to the next within a process: the calibration scans and
+/// the capture that follows them in one `capture` run, or a daemon's
+/// captures back to back, light one physical bar. A new process starts
+/// with a cold bar, as the next morning's run would. f64 bits.
+static SIM_BAR_ON_S: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+
 impl Session {
     /// Switch the rig off (LEDs off, motors released) and stop the emulated
     /// microcontroller if there is one.
     pub async fn close(&mut self) {
+        if let RigCamera::Sim(c) = &self.camera {
+            SIM_BAR_ON_S.store(c.on_time_s().to_bits(), std::sync::atomic::Ordering::Relaxed);
+        }
         self.rig.shutdown().await;
         if let Some(mcu) = self.mcu.take() {
             let _ = mcu.stop().await;
@@ -148,7 +158,14 @@ pub async fn open_sim(
         config::SimRig::Ideal => RigTruth::ideal(geometry),
         config::SimRig::Perturbed { seed, .. } => {
             let p = |part: &str| rf.sim.rig.perturbs(part);
-            let tol = sim::Tolerances::default().keeping(p("camera"), p("leds"), p("gantry"), p("sample"), p("sensor"));
+            let tol = sim::Tolerances::default().keeping(
+                p("camera"),
+                p("leds"),
+                p("gantry"),
+                p("sample"),
+                p("sensor"),
+                p("drift"),
+            );
             RigTruth::drawn(geometry, &tol, seed)
         }
     };
@@ -161,7 +178,8 @@ pub async fn open_sim(
         faults: faults.clone(),
         rest_um,
     };
-    let camera = tokio::task::block_in_place(|| SimCamera::new(cfg, material, world));
+    let mut camera = tokio::task::block_in_place(|| SimCamera::new(cfg, material, world));
+    camera.set_on_time_s(f64::from_bits(SIM_BAR_ON_S.load(std::sync::atomic::Ordering::Relaxed)));
     let mut settings = RigSettings::for_geometry(geometry, scale, rf.led_current_ma);
     if !rf.sim.realtime {
         // Motion is sped up by the time scale, so a late `MoveDone` is

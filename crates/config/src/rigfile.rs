@@ -67,8 +67,9 @@ fn default_fps() -> f32 {
 /// `k` of [`SimRig::Perturbed`]'s `parts` is `RIG_PARTS[k]`): the camera
 /// (pose and lens), the LEDs (positions, bar height and tilt), the gantry
 /// (offset, scale, backlash), the sample's height and tilt, and the sensor
-/// and room (dark current, hot pixels, ambient light).
-pub const RIG_PARTS: [&str; 5] = ["camera", "leds", "gantry", "sample", "sensor"];
+/// and room (dark current, hot pixels, ambient light), and the LEDs' drift
+/// as the bar warms.
+pub const RIG_PARTS: [&str; 6] = ["camera", "leds", "gantry", "sample", "sensor", "drift"];
 
 /// Every part perturbed.
 pub const ALL_PARTS: u8 = (1 << RIG_PARTS.len()) - 1;

@@ -43,6 +43,8 @@ pub struct WhiteAccumulator<'a> {
     /// Dark frames taken with the scan, if any (else `black` is subtracted).
     dark: crate::ingest::DarkLevel,
     peak: Vec<f32>,
+    /// The reference patches' readings (`crate::drift`).
+    patches: crate::drift::DriftTrack,
 }
 
 /// The white scan's plan: every LED at 48 carriage positions over the
@@ -87,6 +89,7 @@ impl<'a> WhiteAccumulator<'a> {
             black: ctx.inputs.calibration.black_level,
             dark: Default::default(),
             peak,
+            patches: crate::drift::DriftTrack::new(&ctx.inputs.geometry, ctx.n_lights()),
         }
     }
 
@@ -102,6 +105,12 @@ impl<'a> WhiteAccumulator<'a> {
         let ctx = self.ctx;
         let Some(q) = ctx.inputs.plan.light_index(shot.step, shot.led) else { return };
         let img = f.to_rgb();
+        let noise = crate::drift::Noise {
+            e_per_dn: ctx.inputs.e_per_dn,
+            read_dn: ctx.inputs.calibration.read_noise_dn.iter().sum::<f32>() / 3.0,
+        };
+        let (dark, black) = (&self.dark, self.black);
+        self.patches.push(q, &img, |px| dark.at(px).unwrap_or(black), &f.meta, noise);
         let scale = 1.0 / (f.meta.exposure_us.max(1) as f32 * 1e-6 * f.meta.gain.max(crate::tol::MIN_DIVISOR));
         let k = std::f32::consts::PI / self.albedo;
         let black = self.black;
@@ -239,6 +248,24 @@ impl<'a> WhiteAccumulator<'a> {
             }
         }
         let a = alpha as f32;
+        let profile_exponent = base.profile_exponent + dm as f32;
+        // The patches' readings under each LED at each position, for the
+        // captures' drift (`crate::drift`).
+        let drift_reference = (!self.patches.is_empty()).then(|| {
+            let (reading, rel_var) = self.patches.reference(
+                self.ctx,
+                n_leds,
+                |q| centre + a * (self.ctx.lights[q].pos - centre),
+                profile_exponent,
+            );
+            let plan = &self.ctx.inputs.plan;
+            setup::calibration::DriftReference {
+                patches: self.ctx.inputs.geometry.references.clone(),
+                positions_mm: (0..plan.steps).map(|s| plan.step_um(s) as f32 / 1000.0).collect(),
+                reading,
+                rel_var,
+            }
+        });
         let lights = base.lights.clone().map(|l| setup::calibration::LightCalibration {
             led_mm: l.led_mm.iter().map(|&p| centre + a * (p - centre)).collect(),
             travel_mm: a * l.travel_mm,
@@ -248,12 +275,13 @@ impl<'a> WhiteAccumulator<'a> {
         Some(Calibration {
             id,
             led_scale,
-            profile_exponent: base.profile_exponent + dm as f32,
+            profile_exponent,
             flat_field: lf.iter().map(|v| v.exp() as f32).collect(),
             flat_field_grid: Some(self.ctx.inputs.grid),
             reference_albedo: self.albedo,
             residual_rms: ((ss / n.max(1) as f64).sqrt()) as f32,
             lights,
+            drift_reference,
             ..base.clone()
         })
     }

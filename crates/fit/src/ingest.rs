@@ -11,6 +11,9 @@
 //!   are 8x apart), so dropping the shorter ones costs at most 1/9 of the
 //!   SNR while needing no per-sample accumulator. A sample clipped in every
 //!   exposure is flagged saturated.
+//! - **Drift**: each frame's reference patches are read as it arrives, and
+//!   at the end every light's samples are divided by its LED's drift since
+//!   the white scan ([`crate::drift`]).
 //! - **Masks**: occluded by the bar, outside the camera's view, light at
 //!   grazing incidence, or irradiance below [`DIM_FRACTION`] of the point's
 //!   brightest light.
@@ -86,6 +89,7 @@ pub struct Ingest<'a> {
     dark: Vec<DarkLevel>,
     /// Brightest irradiance over all lights, per point.
     peak_irradiance: Vec<f32>,
+    drift: crate::drift::DriftTrack,
     pub frames: u64,
 }
 
@@ -101,6 +105,7 @@ impl<'a> Ingest<'a> {
             store: SampleStore::new(n, ctx.n_lights()),
             dark: vec![DarkLevel::default(); ctx.inputs.plan.exposures_us.len()],
             peak_irradiance,
+            drift: crate::drift::DriftTrack::new(&ctx.inputs.geometry, ctx.n_lights()),
             frames: 0,
         }
     }
@@ -128,6 +133,13 @@ impl<'a> Ingest<'a> {
             return;
         }
         let img = frame.to_rgb();
+        let noise = crate::drift::Noise {
+            e_per_dn: ctx.inputs.e_per_dn,
+            read_dn: ctx.inputs.calibration.read_noise_dn.iter().sum::<f32>() / 3.0,
+        };
+        let (dark, black) = (&self.dark, ctx.inputs.calibration.black_level);
+        let dark_at = |px| dark.get(e).and_then(|d| d.at(px)).unwrap_or(black);
+        self.drift.push(q, &img, dark_at, &frame.meta, noise);
         let scale = 1.0 / (frame.meta.exposure_us.max(1) as f32 * 1e-6 * frame.meta.gain.max(crate::tol::MIN_DIVISOR));
         let darks: Vec<[f32; 3]> =
             ctx.pixels.iter().map(|px| px.map_or([0.0; 3], |px| self.dark_at(shot.exposure, px))).collect();
@@ -178,8 +190,15 @@ impl<'a> Ingest<'a> {
         self.frames += 1;
     }
 
-    pub fn finish(self) -> SampleStore {
-        self.store
+    /// The samples, each light's divided by its LED's drift, and what the
+    /// drift correction did (`None` on a rig without reference patches).
+    pub fn finish(self) -> (SampleStore, Option<crate::drift::DriftSummary>) {
+        let mut store = self.store;
+        if self.drift.is_empty() {
+            return (store, None);
+        }
+        let summary = self.drift.apply(self.ctx, &mut store);
+        (store, Some(summary))
     }
 
     pub fn store(&self) -> &SampleStore {

@@ -33,6 +33,7 @@ pub mod analytic;
 pub mod calibrate;
 pub mod context;
 pub mod diffuse;
+pub mod drift;
 pub mod geometric;
 pub mod ingest;
 pub mod lsq;

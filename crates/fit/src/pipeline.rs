@@ -95,6 +95,9 @@ pub struct FitResult {
     pub samples: Option<SampleStore>,
     /// Set when far fewer samples were usable than the geometry allows.
     pub few_samples: Option<String>,
+    /// What the LED drift correction did (frames fed through [`Pipeline`]
+    /// on a rig with reference patches).
+    pub drift: Option<crate::drift::DriftSummary>,
 }
 
 /// Why a fit produced nothing.
@@ -170,9 +173,10 @@ impl<'a> Pipeline<'a> {
     /// No more frames: run the stages.
     pub fn finish(self, stop: &dyn Fn() -> bool) -> Result<FitResult, FitError> {
         let frames = self.ingest.frames;
-        let store = self.ingest.finish();
+        let (store, drift) = self.ingest.finish();
         let mut r = run_from(self.ctx, store, self.settings, &self.stages, stop, self.last_frame)?;
         r.frames = frames;
+        r.drift = drift;
         r.timings.ingest_s = self.ingest_s;
         Ok(r)
     }
@@ -233,6 +237,7 @@ fn run_from(
         selection,
         samples,
         few_samples,
+        drift: None,
     })
 }
 

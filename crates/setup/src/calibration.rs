@@ -53,6 +53,55 @@ pub struct Calibration {
     /// measured them; without it the rig file's bar is trusted.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub lights: Option<LightCalibration>,
+    /// How bright the rig's reference patches were during the white scan,
+    /// under each LED at each carriage position: what a capture's own
+    /// readings of them are compared with to correct LED drift
+    /// (`fit::drift`). Absent from a calibration of a rig without patches
+    /// or made before they existed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub drift_reference: Option<DriftReference>,
+}
+
+/// The reference patches as the white scan saw them, under each LED at each
+/// of its carriage positions.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct DriftReference {
+    /// The patches it was measured on (the rig file's when the white scan
+    /// ran; a capture whose rig file names others cannot use it).
+    pub patches: Vec<crate::geometry::ReferencePatch>,
+    /// The white scan's commanded carriage positions, mm, ascending.
+    pub positions_mm: Vec<f32>,
+    /// `[patch][led][position]`: the patch's signal over the irradiance the
+    /// calibrated geometry gives it at unit LED intensity (`fit::drift`); 0
+    /// where it was not read (hidden by the bar, or too dimly lit).
+    pub reading: Vec<Vec<Vec<f32>>>,
+    /// The same shape: each reading's relative variance from shot and read
+    /// noise.
+    pub rel_var: Vec<Vec<Vec<f32>>>,
+}
+
+impl DriftReference {
+    /// Patch `p`'s reading of LED `led` with the carriage commanded to
+    /// `x_mm`, in logarithms, and its relative variance: interpolated
+    /// between the two positions around it when both were read, else the
+    /// nearer one's if it is within a quarter of their spacing; `None`
+    /// outside the positions or where unread.
+    pub fn at(&self, p: usize, led: u8, x_mm: f32) -> Option<(f64, f64)> {
+        let (r, v) = (self.reading.get(p)?.get(led as usize)?, self.rel_var.get(p)?.get(led as usize)?);
+        let x = &self.positions_mm;
+        let i = x.windows(2).position(|w| w[0] <= x_mm && x_mm <= w[1])?;
+        let t = ((x_mm - x[i]) / (x[i + 1] - x[i]).max(f32::MIN_POSITIVE)) as f64;
+        let read = |j: usize| {
+            let (m, rv) = (*r.get(j)?, *v.get(j)?);
+            (m > 0.0).then(|| ((m as f64).ln(), rv as f64))
+        };
+        match (read(i), read(i + 1)) {
+            (Some((a, va)), Some((b, vb))) => Some(((1.0 - t) * a + t * b, (1.0 - t).powi(2) * va + t * t * vb)),
+            (Some(a), None) if t <= 0.25 => Some(a),
+            (None, Some(b)) if t >= 0.75 => Some(b),
+            _ => None,
+        }
+    }
 }
 
 /// The LEDs' positions in the sample frame of the camera calibration, from
@@ -134,6 +183,7 @@ impl Calibration {
             residual_rms: 0.0,
             camera: None,
             lights: None,
+            drift_reference: None,
         }
     }
 
@@ -194,5 +244,31 @@ impl Calibration {
         let v =
             (at(x0, y0) * (1.0 - fx) + at(x1, y0) * fx) * (1.0 - fy) + (at(x0, y1) * (1.0 - fx) + at(x1, y1) * fx) * fy;
         if v.is_finite() && v > 0.0 { v } else { 1.0 }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_white_scans_patch_reading_is_interpolated_between_its_positions() {
+        let d = DriftReference {
+            patches: Vec::new(),
+            positions_mm: vec![0.0, 10.0, 20.0, 30.0],
+            reading: vec![vec![vec![1.0, 4.0, 0.0, 2.0]]],
+            rel_var: vec![vec![vec![1e-4, 4e-4, 0.0, 1e-4]]],
+        };
+        // Between two readings: their logarithms, linearly.
+        let (ln, var) = d.at(0, 0, 5.0).unwrap();
+        assert!((ln - 0.5 * 4f64.ln()).abs() < 1e-9, "{ln}");
+        assert!((var - 0.25 * (1e-4 + 4e-4)).abs() < 1e-9, "{var}");
+        // Beside an unread position: the read one only when near it.
+        assert!((d.at(0, 0, 12.0).unwrap().0 - 4f64.ln()).abs() < 1e-9);
+        assert!(d.at(0, 0, 15.0).is_none());
+        assert!((d.at(0, 0, 28.0).unwrap().0 - 2f64.ln()).abs() < 1e-9);
+        // Outside the travel, another LED or patch: nothing.
+        assert!(d.at(0, 0, -1.0).is_none() && d.at(0, 0, 31.0).is_none());
+        assert!(d.at(0, 1, 5.0).is_none() && d.at(1, 0, 5.0).is_none());
     }
 }

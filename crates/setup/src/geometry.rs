@@ -20,6 +20,28 @@ impl SampleArea {
     }
 }
 
+/// A matte white patch fixed beside the sample, level with its surface and
+/// in the camera's view, that every frame of a capture sees lit by the same
+/// LED as the sample: what the LEDs' intensity drift during a capture is
+/// measured from (`fit::drift`). Its albedo need not be known; it must not
+/// change between the white scan and the capture.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ReferencePatch {
+    /// Its centre in the sample plane, mm.
+    pub centre_mm: Vec2,
+    /// Its extent along `x` and `y`, mm.
+    pub size_mm: Vec2,
+}
+
+impl ReferencePatch {
+    /// Whether `p` (sample plane, mm) lies on the patch at least
+    /// `margin_mm` inside its edges.
+    pub fn contains(&self, p: Vec2, margin_mm: f32) -> bool {
+        let d = (p - self.centre_mm).abs();
+        d.x <= 0.5 * self.size_mm.x - margin_mm && d.y <= 0.5 * self.size_mm.y - margin_mm
+    }
+}
+
 /// The bar of LEDs carried by the gantry, parallel to `y`.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct LedBar {
@@ -131,6 +153,10 @@ pub struct RigGeometry {
     pub gantry: Gantry,
     pub emission: LedEmission,
     pub camera: CameraModel,
+    /// The white patches beside the sample that LED drift is measured from
+    /// (none in a rig file that predates them: drift is then not corrected).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub references: Vec<ReferencePatch>,
 }
 
 impl Default for RigGeometry {
@@ -158,6 +184,15 @@ impl Default for RigGeometry {
             },
             emission: LedEmission { profile_exponent: 1.0, current_ma: 200 },
             camera: CameraModel::oblique(45.0, 450.0, 15.0, 256, 256),
+            // One patch past each end of the sample along the travel, so
+            // that every carriage position has one within about 75 mm
+            // whose view the bar does not block (it hides the near one
+            // with the carriage near -100 mm, the far one near +20 mm).
+            // The camera sees the plane to about -74 and +96 mm on `y = 0`.
+            references: vec![
+                ReferencePatch { centre_mm: Vec2::new(-62.0, 0.0), size_mm: Vec2::new(10.0, 80.0) },
+                ReferencePatch { centre_mm: Vec2::new(65.0, 0.0), size_mm: Vec2::new(14.0, 100.0) },
+            ],
         }
     }
 }

@@ -15,7 +15,9 @@ pub mod valid;
 
 pub use calibration::Calibration;
 pub use camera::CameraModel;
-pub use geometry::{Gantry, LedBar, LedEmission, PointGrid, RigGeometry, SampleArea, trapezoid_seconds};
+pub use geometry::{
+    Gantry, LedBar, LedEmission, PointGrid, ReferencePatch, RigGeometry, SampleArea, trapezoid_seconds,
+};
 pub use plan::{CapturePlan, PlanError, PlannedShot};
 pub use target::CheckerTarget;
 pub use valid::Invalid;

@@ -110,6 +110,22 @@ impl RigGeometry {
         // stops existing within the field of view of any rig camera).
         within(&format!("{g}.camera.radial_k[0]"), c.radial_k[0], -1.0, 1.0)?;
         within(&format!("{g}.camera.radial_k[1]"), c.radial_k[1], -1.0, 1.0)?;
+        for (k, r) in self.references.iter().enumerate() {
+            let f = format!("{g}.references[{k}]");
+            within(&format!("{f}.centre_mm.x"), r.centre_mm.x, -REACH_MM, REACH_MM)?;
+            within(&format!("{f}.centre_mm.y"), r.centre_mm.y, -REACH_MM, REACH_MM)?;
+            above(&format!("{f}.size_mm.x"), r.size_mm.x, 0.0, 1000.0)?;
+            above(&format!("{f}.size_mm.y"), r.size_mm.y, 0.0, 1000.0)?;
+            // A patch on the sample would be fitted as the sample.
+            let gap = (r.centre_mm.abs() - 0.5 * (r.size_mm + glam::Vec2::new(s.width_mm, s.height_mm))).max_element();
+            if gap <= 0.0 {
+                return Err(Invalid::new(
+                    &format!("{f}.centre_mm"),
+                    format!("{}", r.centre_mm),
+                    "beside the sample, not on it (the patch and the sample area overlap)",
+                ));
+            }
+        }
         Ok(())
     }
 }
@@ -139,6 +155,41 @@ impl Calibration {
             // misconfigured, not out of calibration.
             within("lights.travel_mm length", l.travel_mm.length(), 0.9, 1.1)?;
             within("lights.rms_mm", l.rms_mm, 0.0, 5.0)?;
+        }
+        if let Some(d) = &self.drift_reference {
+            if d.positions_mm.windows(2).any(|w| !(w[0] < w[1])) || d.positions_mm.iter().any(|x| !x.is_finite()) {
+                return Err(Invalid::new("drift_reference.positions_mm", "", "finite and ascending"));
+            }
+            for (name, table) in [("reading", &d.reading), ("rel_var", &d.rel_var)] {
+                if table.len() != d.patches.len() {
+                    return Err(Invalid::new(
+                        &format!("drift_reference.{name}"),
+                        format!("{} patches", table.len()),
+                        format!("one per patch ({})", d.patches.len()),
+                    ));
+                }
+                for (p, leds) in table.iter().enumerate() {
+                    if leds.len() != self.led_scale.len() {
+                        return Err(Invalid::new(
+                            &format!("drift_reference.{name}[{p}]"),
+                            format!("{} LEDs", leds.len()),
+                            format!("one per LED ({})", self.led_scale.len()),
+                        ));
+                    }
+                    for (k, row) in leds.iter().enumerate() {
+                        if row.len() != d.positions_mm.len() {
+                            return Err(Invalid::new(
+                                &format!("drift_reference.{name}[{p}][{k}]"),
+                                format!("{} values", row.len()),
+                                format!("one per position ({})", d.positions_mm.len()),
+                            ));
+                        }
+                        for (j, &v) in row.iter().enumerate() {
+                            within(&format!("drift_reference.{name}[{p}][{k}][{j}]"), v, 0.0, f32::MAX)?;
+                        }
+                    }
+                }
+            }
         }
         for k in 0..3 {
             within("black_level", self.black_level[k], 0.0, 1e6)?;
@@ -187,6 +238,8 @@ mod tests {
             ("geometry.camera.up", Box::new(|g| g.camera.up = Vec3::ZERO)),
             ("geometry.camera.position_mm", Box::new(|g| g.camera.position_mm.x = f32::INFINITY)),
             ("geometry.bar.n_leds", Box::new(|g| g.bar.n_leds = 0)),
+            ("geometry.references[1].size_mm.x", Box::new(|g| g.references[1].size_mm.x = f32::NAN)),
+            ("geometry.references[0].centre_mm", Box::new(|g| g.references[0].centre_mm.x = -52.0)),
         ];
         for (field, spoil) in cases {
             let mut g = RigGeometry::default();
@@ -208,6 +261,27 @@ mod tests {
         let mut c = Calibration::nominal(40, 1.0, 0.0);
         c.flat_field = vec![1.0, -0.5];
         assert_eq!(c.validate().unwrap_err().field, "flat_field[1]");
+        // A drift reference of another rig's shape, or with an impossible
+        // reading, is refused.
+        let patch = crate::geometry::ReferencePatch { centre_mm: glam::Vec2::new(70.0, 0.0), size_mm: glam::Vec2::ONE };
+        let good = crate::calibration::DriftReference {
+            patches: vec![patch],
+            positions_mm: vec![0.0, 1.0],
+            reading: vec![vec![vec![1.0, 0.0]; 40]],
+            rel_var: vec![vec![vec![1e-4, 0.0]; 40]],
+        };
+        let mut c = Calibration::nominal(40, 1.0, 0.0);
+        c.drift_reference = Some(good.clone());
+        c.validate().unwrap();
+        c.drift_reference = Some(crate::calibration::DriftReference { positions_mm: vec![1.0, 0.0], ..good.clone() });
+        assert_eq!(c.validate().unwrap_err().field, "drift_reference.positions_mm");
+        c.drift_reference =
+            Some(crate::calibration::DriftReference { reading: vec![vec![vec![1.0, 0.0]; 39]], ..good.clone() });
+        assert_eq!(c.validate().unwrap_err().field, "drift_reference.reading[0]");
+        let mut bad = good;
+        bad.rel_var[0][3][1] = f32::NAN;
+        c.drift_reference = Some(bad);
+        assert_eq!(c.validate().unwrap_err().field, "drift_reference.rel_var[0][3][1]");
     }
 
     #[test]
