@@ -87,6 +87,7 @@ pub async fn finish_fit(
         tokio::task::block_in_place(|| material::write(&dir, &m, material::WriteMode::Replace))
             .with_context(|| format!("writing {}", dir.display()))?;
         report.time("fit_ingest_s", out.timings.ingest_s);
+        report.time("fit_drift_s", out.timings.drift_s);
         report.time("fit_points_s", out.timings.points_s);
         report.time("fit_synthesis_s", out.timings.synthesis_s);
         report.time("fit_pool_s", out.timings.pool_s);

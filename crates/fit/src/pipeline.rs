@@ -59,6 +59,9 @@ pub struct Timings {
     pub ingest_s: f64,
     /// From the last frame to the end of the per-point stage.
     pub points_s: f64,
+    /// The LED drift correction after the last frame (`crate::drift`;
+    /// counted in `points_s` too).
+    pub drift_s: f64,
     /// Pooling the points of each material (`crate::pooled`).
     pub pool_s: f64,
     pub synthesis_s: f64,
@@ -173,10 +176,13 @@ impl<'a> Pipeline<'a> {
     /// No more frames: run the stages.
     pub fn finish(self, stop: &dyn Fn() -> bool) -> Result<FitResult, FitError> {
         let frames = self.ingest.frames;
+        let t = Instant::now();
         let (store, drift) = self.ingest.finish();
+        let drift_s = t.elapsed().as_secs_f64();
         let mut r = run_from(self.ctx, store, self.settings, &self.stages, stop, self.last_frame)?;
         r.frames = frames;
         r.drift = drift;
+        r.timings.drift_s = drift_s;
         r.timings.ingest_s = self.ingest_s;
         Ok(r)
     }
