@@ -89,7 +89,7 @@ impl<'a> WhiteAccumulator<'a> {
             black: ctx.inputs.calibration.black_level,
             dark: Default::default(),
             peak,
-            patches: crate::drift::DriftTrack::new(&ctx.inputs.geometry, ctx.n_lights()),
+            patches: crate::drift::DriftTrack::new(ctx),
         }
     }
 
@@ -105,16 +105,10 @@ impl<'a> WhiteAccumulator<'a> {
         let ctx = self.ctx;
         let Some(q) = ctx.inputs.plan.light_index(shot.step, shot.led) else { return };
         let img = f.to_rgb();
-        let noise = crate::drift::Noise {
-            e_per_dn: ctx.inputs.e_per_dn,
-            read_dn: ctx.inputs.calibration.read_noise_dn.iter().sum::<f32>() / 3.0,
-        };
         let (dark, black) = (&self.dark, self.black);
-        self.patches.push(q, &img, |px| dark.at(px).unwrap_or(black), &f.meta, noise);
-        let scale = 1.0 / (f.meta.exposure_us.max(1) as f32 * 1e-6 * f.meta.gain.max(crate::tol::MIN_DIVISOR));
+        self.patches.push(q, &img, |px| dark.at(px).unwrap_or(black), &f.meta);
+        let scale = crate::ingest::per_second(&f.meta);
         let k = std::f32::consts::PI / self.albedo;
-        let black = self.black;
-        let dark = &self.dark;
         let peak = &self.peak;
         let n = ctx.n_points();
         self.signal[q * n..(q + 1) * n].par_iter_mut().enumerate().for_each(|(p, slot)| {

@@ -65,6 +65,21 @@ pub const PIXEL_REACH: f32 = 2.5;
 /// errors of the camera pose.
 pub const OCCLUSION_MARGIN_MM: f32 = 1.0;
 
+/// An LED at `pos` shining along `axis`, seen from the point `x` of the
+/// sample plane: the unit direction toward it, the squared distance and the
+/// cosine from its axis (floored at [`MIN_COS_I`]); `None` at or below the
+/// point's horizon (beyond [`MIN_COS_I`]). The radiometric equation's
+/// geometry, for samples and for the reference patches (`crate::drift`).
+pub fn light_at(x: Vec3, pos: Vec3, axis: Vec3) -> Option<(Vec3, f32, f32)> {
+    let d = pos - x;
+    let r2 = d.length_squared();
+    let i = d / r2.sqrt();
+    if i.z < MIN_COS_I {
+        return None;
+    }
+    Some((i, r2, (-i.dot(axis)).max(MIN_COS_I)))
+}
+
 #[derive(Debug)]
 pub struct FitContext {
     pub inputs: FitInputs,
@@ -168,13 +183,7 @@ impl FitContext {
     pub fn sample_from(&self, p: usize, q: usize, pos: Vec3) -> Option<SampleGeometry> {
         let x = self.positions[p];
         let l = &self.lights[q];
-        let d = pos - x;
-        let r2 = d.length_squared();
-        let i = d / r2.sqrt();
-        if i.z < MIN_COS_I {
-            return None;
-        }
-        let cos_emit = (-i.dot(self.led_axis)).max(MIN_COS_I);
+        let (i, r2, cos_emit) = light_at(x, pos, self.led_axis)?;
         let profile = cos_emit.powf(self.inputs.calibration.profile_exponent);
         let irradiance = l.scale * self.flat[p] * profile * i.z / r2;
         let g = &self.inputs.geometry;

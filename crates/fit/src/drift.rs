@@ -48,7 +48,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use setup::RigGeometry;
 
-use crate::context::{FitContext, MIN_COS_I, OCCLUSION_MARGIN_MM};
+use crate::context::{FitContext, OCCLUSION_MARGIN_MM, light_at};
 use crate::samples::SampleStore;
 
 /// A patch's reading noisier than this (relative standard deviation from
@@ -189,13 +189,11 @@ pub fn irradiance(
 ) -> Option<f32> {
     let mut sum = 0.0f32;
     for &(_, x) in pixels {
-        let d = pos - x;
-        let r2 = d.length_squared();
-        let i = d / r2.sqrt();
-        if i.z < MIN_COS_I || g.bar.occludes(bar_x_mm, x, g.camera.position_mm, OCCLUSION_MARGIN_MM) {
+        let (i, r2, cos_emit) = light_at(x, pos, axis)?;
+        if g.bar.occludes(bar_x_mm, x, g.camera.position_mm, OCCLUSION_MARGIN_MM) {
             return None;
         }
-        sum += (-i.dot(axis)).max(MIN_COS_I).powf(profile) * i.z / r2;
+        sum += cos_emit.powf(profile) * i.z / r2;
     }
     (sum > 0.0 && sum.is_finite()).then_some(sum)
 }
@@ -205,16 +203,22 @@ pub fn irradiance(
 #[derive(Clone, Debug)]
 pub struct DriftTrack {
     pixels: Vec<PatchPixels>,
+    noise: Noise,
     n_lights: usize,
     /// `[patch][light]`: the reading and its exposure, µs.
     readings: Vec<Option<(Reading, u32)>>,
 }
 
 impl DriftTrack {
-    pub fn new(geometry: &RigGeometry, n_lights: usize) -> Self {
-        let pixels = patch_pixels(geometry);
-        let readings = vec![None; pixels.len() * n_lights];
-        Self { pixels, n_lights, readings }
+    /// For the plan, geometry and sensor of `ctx`.
+    pub fn new(ctx: &FitContext) -> Self {
+        let pixels = patch_pixels(&ctx.inputs.geometry);
+        let noise = Noise {
+            e_per_dn: ctx.inputs.e_per_dn,
+            read_dn: ctx.inputs.calibration.read_noise_dn.iter().sum::<f32>() / 3.0,
+        };
+        let n_lights = ctx.n_lights();
+        Self { readings: vec![None; pixels.len() * n_lights], pixels, noise, n_lights }
     }
 
     /// Whether the rig has no reference patches at all.
@@ -223,21 +227,13 @@ impl DriftTrack {
     }
 
     /// Read every patch off the frame of light `q`.
-    pub fn push(
-        &mut self,
-        q: usize,
-        img: &RgbImage,
-        dark: impl Fn(Vec2) -> [f32; 3],
-        meta: &frame::FrameMeta,
-        noise: Noise,
-    ) {
+    pub fn push(&mut self, q: usize, img: &RgbImage, dark: impl Fn(Vec2) -> [f32; 3], meta: &frame::FrameMeta) {
         if q >= self.n_lights {
             return;
         }
-        let gain = meta.gain.max(crate::tol::MIN_DIVISOR);
-        let scale = 1.0 / (meta.exposure_us.max(1) as f32 * 1e-6 * gain);
+        let (scale, gain) = (crate::ingest::per_second(meta), meta.gain.max(crate::tol::MIN_DIVISOR));
         for (p, px) in self.pixels.iter().enumerate() {
-            let Some(r) = read(px, img, &dark, scale, gain, noise) else { continue };
+            let Some(r) = read(px, img, &dark, scale, gain, self.noise) else { continue };
             let slot = &mut self.readings[p * self.n_lights + q];
             if slot.is_none_or(|(_, e)| meta.exposure_us > e) {
                 *slot = Some((r, meta.exposure_us));
@@ -350,15 +346,20 @@ impl DriftTrack {
                 });
             }
         }
-        let (lo, hi) = known.iter().fold((f32::MAX, f32::MIN), |(a, b), &f| (a.min(f), b.max(f)));
+        let (lowest, highest, mean) = if known.is_empty() {
+            (1.0, 1.0, 1.0)
+        } else {
+            let (lo, hi) = known.iter().fold((f32::MAX, f32::MIN), |(a, b), &f| (a.min(f), b.max(f)));
+            (lo, hi, known.iter().sum::<f32>() / known.len() as f32)
+        };
         DriftSummary {
             patches: self.pixels.len(),
             patches_read: self.pixels.iter().filter(|p| !p.is_empty()).count(),
             lights_corrected: known.len(),
             lights: factors.len(),
-            lowest: if known.is_empty() { 1.0 } else { lo },
-            highest: if known.is_empty() { 1.0 } else { hi },
-            mean: if known.is_empty() { 1.0 } else { known.iter().sum::<f32>() / known.len() as f32 },
+            lowest,
+            highest,
+            mean,
         }
     }
 }

@@ -41,6 +41,12 @@ pub const DIM_FRACTION: f32 = 0.02;
 /// lobes seen by a camera pixel.
 pub const MAX_RHO: f32 = 6.0e4;
 
+/// The factor from a frame's DN to signal: per second of exposure at unit
+/// gain.
+pub fn per_second(meta: &frame::FrameMeta) -> f32 {
+    1.0 / (meta.exposure_us.max(1) as f32 * 1e-6 * meta.gain.max(crate::tol::MIN_DIVISOR))
+}
+
 /// The mean of a set of dark frames (LEDs off) per pixel, demosaiced: the
 /// sensor's black level and dark current and the room's light, pixel by
 /// pixel.
@@ -81,6 +87,12 @@ impl DarkLevel {
     }
 }
 
+/// The dark level (DN) at a pixel for exposure `exposure`: the mean of its
+/// dark frames, else `black` (the calibration's black level).
+fn dark_level(dark: &[DarkLevel], exposure: u8, px: glam::Vec2, black: [f32; 3]) -> [f32; 3] {
+    dark.get(exposure as usize).and_then(|d| d.at(px)).unwrap_or(black)
+}
+
 #[derive(Debug)]
 pub struct Ingest<'a> {
     ctx: &'a FitContext,
@@ -105,7 +117,7 @@ impl<'a> Ingest<'a> {
             store: SampleStore::new(n, ctx.n_lights()),
             dark: vec![DarkLevel::default(); ctx.inputs.plan.exposures_us.len()],
             peak_irradiance,
-            drift: crate::drift::DriftTrack::new(&ctx.inputs.geometry, ctx.n_lights()),
+            drift: crate::drift::DriftTrack::new(ctx),
             frames: 0,
         }
     }
@@ -120,7 +132,7 @@ impl<'a> Ingest<'a> {
 
     /// Dark level (DN) at a pixel for an exposure.
     fn dark_at(&self, exposure: u8, px: glam::Vec2) -> [f32; 3] {
-        self.dark.get(exposure as usize).and_then(|d| d.at(px)).unwrap_or(self.ctx.inputs.calibration.black_level)
+        dark_level(&self.dark, exposure, px, self.ctx.inputs.calibration.black_level)
     }
 
     /// Add the frame of a planned shot.
@@ -133,14 +145,9 @@ impl<'a> Ingest<'a> {
             return;
         }
         let img = frame.to_rgb();
-        let noise = crate::drift::Noise {
-            e_per_dn: ctx.inputs.e_per_dn,
-            read_dn: ctx.inputs.calibration.read_noise_dn.iter().sum::<f32>() / 3.0,
-        };
         let (dark, black) = (&self.dark, ctx.inputs.calibration.black_level);
-        let dark_at = |px| dark.get(e).and_then(|d| d.at(px)).unwrap_or(black);
-        self.drift.push(q, &img, dark_at, &frame.meta, noise);
-        let scale = 1.0 / (frame.meta.exposure_us.max(1) as f32 * 1e-6 * frame.meta.gain.max(crate::tol::MIN_DIVISOR));
+        self.drift.push(q, &img, |px| dark_level(dark, shot.exposure, px, black), &frame.meta);
+        let scale = per_second(&frame.meta);
         let darks: Vec<[f32; 3]> =
             ctx.pixels.iter().map(|px| px.map_or([0.0; 3], |px| self.dark_at(shot.exposure, px))).collect();
         let peak = &self.peak_irradiance;

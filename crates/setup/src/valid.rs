@@ -40,6 +40,15 @@ pub fn count(field: &str, v: u64, lo: u64, hi: u64) -> Result<(), Invalid> {
     if (lo..=hi).contains(&v) { Ok(()) } else { Err(Invalid::new(field, v, format!("between {lo} and {hi}"))) }
 }
 
+/// `got` items, one per `unit` of which there are `want`.
+fn one_per(field: &str, got: usize, items: &str, unit: &str, want: usize) -> Result<(), Invalid> {
+    if got == want {
+        Ok(())
+    } else {
+        Err(Invalid::new(field, format!("{got} {items}"), format!("one per {unit} ({want})")))
+    }
+}
+
 fn finite3(field: &str, v: Vec3, limit: f32) -> Result<(), Invalid> {
     if v.is_finite() && v.abs().max_element() <= limit {
         Ok(())
@@ -140,13 +149,7 @@ impl Calibration {
             within("camera.rms_px", c.rms_px, 0.0, 2.0)?;
         }
         if let Some(l) = &self.lights {
-            if l.led_mm.len() != self.led_scale.len() {
-                return Err(Invalid::new(
-                    "lights.led_mm",
-                    format!("{} positions", l.led_mm.len()),
-                    format!("one per LED ({})", self.led_scale.len()),
-                ));
-            }
+            one_per("lights.led_mm", l.led_mm.len(), "positions", "LED", self.led_scale.len())?;
             for (k, &p) in l.led_mm.iter().enumerate() {
                 finite3(&format!("lights.led_mm[{k}]"), p, REACH_MM)?;
             }
@@ -161,31 +164,14 @@ impl Calibration {
                 return Err(Invalid::new("drift_reference.positions_mm", "", "finite and ascending"));
             }
             for (name, table) in [("reading", &d.reading), ("rel_var", &d.rel_var)] {
-                if table.len() != d.patches.len() {
-                    return Err(Invalid::new(
-                        &format!("drift_reference.{name}"),
-                        format!("{} patches", table.len()),
-                        format!("one per patch ({})", d.patches.len()),
-                    ));
-                }
+                let f = format!("drift_reference.{name}");
+                one_per(&f, table.len(), "patches", "patch", d.patches.len())?;
                 for (p, leds) in table.iter().enumerate() {
-                    if leds.len() != self.led_scale.len() {
-                        return Err(Invalid::new(
-                            &format!("drift_reference.{name}[{p}]"),
-                            format!("{} LEDs", leds.len()),
-                            format!("one per LED ({})", self.led_scale.len()),
-                        ));
-                    }
+                    one_per(&format!("{f}[{p}]"), leds.len(), "LEDs", "LED", self.led_scale.len())?;
                     for (k, row) in leds.iter().enumerate() {
-                        if row.len() != d.positions_mm.len() {
-                            return Err(Invalid::new(
-                                &format!("drift_reference.{name}[{p}][{k}]"),
-                                format!("{} values", row.len()),
-                                format!("one per position ({})", d.positions_mm.len()),
-                            ));
-                        }
+                        one_per(&format!("{f}[{p}][{k}]"), row.len(), "values", "position", d.positions_mm.len())?;
                         for (j, &v) in row.iter().enumerate() {
-                            within(&format!("drift_reference.{name}[{p}][{k}][{j}]"), v, 0.0, f32::MAX)?;
+                            within(&format!("{f}[{p}][{k}][{j}]"), v, 0.0, f32::MAX)?;
                         }
                     }
                 }
