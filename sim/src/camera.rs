@@ -45,6 +45,7 @@ use rig::clock;
 use tokio::time::Instant;
 
 use crate::faults::FaultSpec;
+use crate::reflect::Reflectance;
 use crate::truth::RigTruth;
 use crate::world::World;
 
@@ -138,12 +139,12 @@ struct Pixel {
     /// Toward the camera, in the sample surface's own frame.
     o: Vec3,
     gain: f32,
-    channel: u8,
     /// Radiance from the room's ambient light.
     ambient: f32,
     /// Dark current, electrons per second.
     dark_e_s: f32,
-    brdf: Option<Arc<PointMaterial>>,
+    /// What the surface reflects toward this pixel, in its channel.
+    reflect: Reflectance,
 }
 
 /// Albedo of what surrounds the sample in view (a matte black mount).
@@ -270,9 +271,12 @@ impl SimCamera {
                         });
                         let o = to_sample * cam.view_dir(p);
                         let ambient = ambient_e * brdf.eval(Vec3::Z, o)[channel as usize];
-                        Pixel { p, o, gain, channel, ambient, dark_e_s, brdf: Some(brdf) }
+                        let reflect = Reflectance::new(brdf, o, channel as usize);
+                        Pixel { p, o, gain, ambient, dark_e_s, reflect }
                     }
-                    None => Pixel { p: Vec3::ZERO, o: Vec3::Z, gain, channel, ambient: 0.0, dark_e_s, brdf: None },
+                    None => {
+                        Pixel { p: Vec3::ZERO, o: Vec3::Z, gain, ambient: 0.0, dark_e_s, reflect: Reflectance::Black }
+                    }
                 }
             })
             .collect()
@@ -438,7 +442,7 @@ impl SimCamera {
             for (col, dn) in out.iter_mut().enumerate() {
                 let px = &pixels[row * w + col];
                 let mut radiance = px.ambient;
-                if let Some(b) = &px.brdf {
+                if !px.reflect.is_black() {
                     for &(led_pos, bar_x, intensity) in lights {
                         if intensity <= 0.0 || bar.occludes(bar_x, px.p, eye, 0.0) {
                             continue;
@@ -452,7 +456,7 @@ impl SimCamera {
                         }
                         let cos_emit = -i.dot(axis);
                         let irradiance = intensity * cos_emit.powf(profile) * i_local.z / r2;
-                        radiance += b.eval(i_local, px.o)[px.channel as usize] * irradiance;
+                        radiance += px.reflect.eval(i_local, px.o) * irradiance;
                     }
                 }
                 let mean_e = (sensor.sensitivity * radiance * exposure_s * px.gain).max(0.0) + px.dark_e_s * exposure_s;

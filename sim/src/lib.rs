@@ -14,6 +14,7 @@ pub mod faults;
 pub mod link;
 pub mod materials;
 pub mod mcu;
+mod reflect;
 pub mod truth;
 pub mod world;
 

@@ -93,6 +93,17 @@ impl Fresnel {
         }
     }
 
+    /// Reflectance of channel `c` (0, 1 or 2) alone: `eval(cos_d)[c]`, to the
+    /// last bit, without computing the other channels.
+    pub fn channel(&self, cos_d: f32, c: usize) -> f32 {
+        let pick = |v: Rgb| v[c.min(2)];
+        match *self {
+            Fresnel::Schlick { f0 } => schlick(cos_d, pick(f0)),
+            Fresnel::Conductor { eta, k } => conductor(cos_d, pick(eta), pick(k)),
+            Fresnel::One | Fresnel::Dielectric { .. } | Fresnel::DielectricRelative { .. } => pick(self.eval(cos_d)),
+        }
+    }
+
     /// The largest value the term can take, used to bound albedo in tests.
     pub fn max_value(&self) -> f32 {
         match *self {

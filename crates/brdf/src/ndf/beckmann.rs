@@ -13,7 +13,7 @@ use std::f32::consts::{PI, TAU};
 use glam::{Vec2, Vec3};
 use serde::{Deserialize, Serialize};
 
-use super::{Ndf, clamp_alpha, from_lobe_frame, normal_from_slopes, to_lobe_frame};
+use super::{Ndf, clamp_alpha, from_lobe_frame, normal_from_slopes};
 
 /// Anisotropic Beckmann NDF with roughness `alpha_x`, `alpha_y` (RMS slope
 /// times sqrt 2) along a lobe frame rotated by `angle_rad` about the normal.
@@ -39,28 +39,15 @@ impl Ndf for Beckmann {
         if h.z <= 0.0 {
             return 0.0;
         }
-        let h = to_lobe_frame(h, self.angle_rad);
-        let (ax, ay) = (self.alpha_x, self.alpha_y);
-        let e = (h.x * h.x / (ax * ax) + h.y * h.y / (ay * ay)) / (h.z * h.z);
-        // Log domain: hz^4 underflows f32 for hz < 1e-10 while exp(-e) is
-        // already zero there; evaluating the logarithm keeps 0/0 out.
-        let ln_d = -e - 4.0 * h.z.ln() - (PI * ax * ay).ln();
-        let d = ln_d.exp();
-        if d.is_finite() { d } else { 0.0 }
+        BeckmannLobe::new(self).d(h, h.z.ln())
     }
 
     fn projected_area(&self, v: Vec3) -> f32 {
-        if v.z <= 0.0 {
-            return projected_area_floor(v);
-        }
-        let v = to_lobe_frame(v, self.angle_rad);
-        let r = ((v.x * self.alpha_x).powi(2) + (v.y * self.alpha_y).powi(2)).sqrt();
-        if r <= 0.0 {
-            return v.z;
-        }
-        let a = v.z / r;
-        let sigma = 0.5 * v.z * (1.0 + libm::erff(a)) + r * (-a * a).exp() / (2.0 * PI.sqrt());
-        sigma.max(v.z)
+        BeckmannLobe::new(self).projected_area(v)
+    }
+
+    fn beckmann_lobes(&self) -> Option<Vec<(f32, Beckmann)>> {
+        Some(vec![(1.0, *self)])
     }
 
     fn sample_h(&self, u: Vec2) -> Vec3 {
@@ -70,6 +57,75 @@ impl Ndf for Beckmann {
         let (s, c) = (TAU * u.y).sin_cos();
         let h = normal_from_slopes(self.alpha_x * r * c, self.alpha_y * r * s);
         from_lobe_frame(h, self.angle_rad)
+    }
+}
+
+/// A [`Beckmann`] lobe prepared for evaluation at many directions: its
+/// rotation's sine and cosine and its normalisation computed once. It is
+/// the one implementation of the distribution (`Beckmann`'s own methods
+/// prepare one per call), so a renderer that keeps one per lobe gets the
+/// same values to the last bit, only sooner.
+#[derive(Clone, Copy, Debug)]
+pub struct BeckmannLobe {
+    alpha_x: f32,
+    alpha_y: f32,
+    alpha_x2: f32,
+    alpha_y2: f32,
+    /// Sine and cosine of the rotation into the lobe frame; `None` for an
+    /// unrotated lobe.
+    to_lobe: Option<(f32, f32)>,
+    /// `ln(pi ax ay)`.
+    ln_norm: f32,
+}
+
+impl BeckmannLobe {
+    pub fn new(b: &Beckmann) -> Self {
+        let (ax, ay) = (b.alpha_x, b.alpha_y);
+        Self {
+            alpha_x: ax,
+            alpha_y: ay,
+            alpha_x2: ax * ax,
+            alpha_y2: ay * ay,
+            to_lobe: (b.angle_rad != 0.0).then(|| (-b.angle_rad).sin_cos()),
+            ln_norm: (PI * ax * ay).ln(),
+        }
+    }
+
+    #[inline]
+    fn in_lobe_frame(&self, v: Vec3) -> Vec3 {
+        match self.to_lobe {
+            None => v,
+            Some((s, c)) => Vec3::new(c * v.x - s * v.y, s * v.x + c * v.y, v.z),
+        }
+    }
+
+    /// `D(h)` for `h.z > 0`, given `ln_hz = ln(h.z)` (shared by every lobe
+    /// of a mixture evaluated at the same `h`).
+    #[inline]
+    pub fn d(&self, h: Vec3, ln_hz: f32) -> f32 {
+        let h = self.in_lobe_frame(h);
+        let e = (h.x * h.x / self.alpha_x2 + h.y * h.y / self.alpha_y2) / (h.z * h.z);
+        // Log domain: hz^4 underflows f32 for hz < 1e-10 while exp(-e) is
+        // already zero there; evaluating the logarithm keeps 0/0 out.
+        let ln_d = -e - 4.0 * ln_hz - self.ln_norm;
+        let d = ln_d.exp();
+        if d.is_finite() { d } else { 0.0 }
+    }
+
+    /// The projected area `sigma(v)` (module doc).
+    #[inline]
+    pub fn projected_area(&self, v: Vec3) -> f32 {
+        if v.z <= 0.0 {
+            return projected_area_floor(v);
+        }
+        let v = self.in_lobe_frame(v);
+        let r = ((v.x * self.alpha_x).powi(2) + (v.y * self.alpha_y).powi(2)).sqrt();
+        if r <= 0.0 {
+            return v.z;
+        }
+        let a = v.z / r;
+        let sigma = 0.5 * v.z * (1.0 + libm::erff(a)) + r * (-a * a).exp() / (2.0 * PI.sqrt());
+        sigma.max(v.z)
     }
 }
 

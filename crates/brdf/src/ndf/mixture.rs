@@ -62,4 +62,16 @@ impl Ndf for Mixture {
     fn pdf_h(&self, h: Vec3) -> f32 {
         self.lobes.iter().map(|(w, n)| w * n.pdf_h(h)).sum()
     }
+
+    /// The lobes when each is a single Beckmann lobe (a mixture of
+    /// mixtures is not flattened: its sums would be taken in another order).
+    fn beckmann_lobes(&self) -> Option<Vec<(f32, super::Beckmann)>> {
+        self.lobes
+            .iter()
+            .map(|(w, n)| match n.beckmann_lobes()?.as_slice() {
+                [(1.0, b)] => Some((*w, *b)),
+                _ => None,
+            })
+            .collect()
+    }
 }

@@ -24,7 +24,7 @@ mod sheen;
 mod table;
 mod tabulated;
 
-pub use beckmann::Beckmann;
+pub use beckmann::{Beckmann, BeckmannLobe};
 pub use ggx::Ggx;
 pub use masking::{MaskingOperator, MaskingTable};
 pub use mixture::Mixture;
@@ -60,6 +60,14 @@ pub trait Ndf: Send + Sync {
     fn pdf_h(&self, h: Vec3) -> f32 {
         self.d(h) * h.z.max(0.0)
     }
+
+    /// The distribution as weighted anisotropic Beckmann lobes, when it is
+    /// exactly that (one [`Beckmann`], or a [`Mixture`] of them): a
+    /// renderer can then prepare each lobe once ([`BeckmannLobe`]) and
+    /// evaluate it for many directions. `None` for anything else.
+    fn beckmann_lobes(&self) -> Option<Vec<(f32, Beckmann)>> {
+        None
+    }
 }
 
 impl<N: Ndf + ?Sized> Ndf for &N {
@@ -74,6 +82,9 @@ impl<N: Ndf + ?Sized> Ndf for &N {
     }
     fn pdf_h(&self, h: Vec3) -> f32 {
         (**self).pdf_h(h)
+    }
+    fn beckmann_lobes(&self) -> Option<Vec<(f32, Beckmann)>> {
+        (**self).beckmann_lobes()
     }
 }
 
@@ -90,6 +101,9 @@ impl<N: Ndf + ?Sized> Ndf for std::sync::Arc<N> {
     fn pdf_h(&self, h: Vec3) -> f32 {
         (**self).pdf_h(h)
     }
+    fn beckmann_lobes(&self) -> Option<Vec<(f32, Beckmann)>> {
+        (**self).beckmann_lobes()
+    }
 }
 
 impl<N: Ndf + ?Sized> Ndf for Box<N> {
@@ -104,6 +118,9 @@ impl<N: Ndf + ?Sized> Ndf for Box<N> {
     }
     fn pdf_h(&self, h: Vec3) -> f32 {
         (**self).pdf_h(h)
+    }
+    fn beckmann_lobes(&self) -> Option<Vec<(f32, Beckmann)>> {
+        (**self).beckmann_lobes()
     }
 }
 
