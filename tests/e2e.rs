@@ -275,7 +275,10 @@ fn the_daemon_runs_one_capture_at_a_time_and_capture_uses_it() {
     assert!(!lab.path("two").exists());
     let o = lab.cmd(REFL).args(["daemon", "--status", "--socket", s(&socket)]).output().unwrap();
     assert_ok(&o, "daemon --status");
-    assert!(String::from_utf8_lossy(&o.stdout).contains("one"), "{}", String::from_utf8_lossy(&o.stdout));
+    let status: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert!(status["busy"]["out"].as_str().is_some_and(|p| p.ends_with("one")), "{status}");
+    // Frames are being stored: the status carries the job's progress.
+    assert!(["frames", "fit"].contains(&status["progress"]["event"].as_str().unwrap_or("")), "{status}");
 
     let o = first.wait_with_output().unwrap();
     assert_ok(&o, "capture through the daemon");
@@ -284,6 +287,16 @@ fn the_daemon_runs_one_capture_at_a_time_and_capture_uses_it() {
         String::from_utf8_lossy(&o.stdout).lines().map(|l| serde_json::from_str(l).unwrap()).collect();
     assert!(events.iter().any(|e| e["detail"].as_str().is_some_and(|d| d.contains("daemon"))), "no hand-over");
     assert!(events.iter().any(|e| e["event"] == "frames"), "no frame progress");
+    // The fit's stages after the last frame came back too, in the
+    // pipeline's order, each count within its total.
+    let fit: Vec<&serde_json::Value> = events.iter().filter(|e| e["event"] == "fit").collect();
+    assert!(fit.iter().all(|e| e["done"].as_u64() <= e["total"].as_u64()), "{fit:?}");
+    let order = ["drift", "points", "synthesis", "refit", "pooling", "analytic", "choice"];
+    let ranks: Vec<usize> =
+        fit.iter().map(|e| order.iter().position(|s| e["stage"] == *s).expect("a known stage")).collect();
+    assert!(!ranks.is_empty() && ranks.windows(2).all(|w| w[0] <= w[1]), "fit stages out of order: {fit:?}");
+    let last = fit.last().unwrap();
+    assert_eq!(last["done"], last["total"], "the fit ended with its last stage complete: {last}");
     assert_eq!(events.last().unwrap()["event"], "done");
     assert!(lab.path("one/material/maps.exr").is_file());
     assert!(lab.path("one/renders/sky.png").is_file());

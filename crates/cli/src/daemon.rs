@@ -19,7 +19,8 @@
 //! A capture is answered with progress [`Event`] lines and a last line
 //! `{"exit":CODE}` (the exit code the in-process `capture` would have
 //! given: 0, 1, 2, 130, or 75 for busy). `status` answers
-//! `{"busy":null}` or `{"busy":{"sample":..,"out":..}}`; `cancel`
+//! `{"busy":null,"progress":null}` or `{"busy":{"sample":..,"out":..},
+//! "progress":EVENT}`, the job's latest `frames` or `fit` event; `cancel`
 //! interrupts the running job (as Ctrl-C would) and answers
 //! `{"cancelled":true|false}`. A client that goes away does not stop its
 //! job: a capture on a rig PC outlives a dropped SSH session; `cancel`
@@ -60,6 +61,8 @@ pub struct JobInfo {
 struct Running {
     info: JobInfo,
     cancel: watch::Sender<bool>,
+    /// The job's latest frame or fit progress, for `status`.
+    progress: Option<Event>,
 }
 
 /// Where a daemon listens: `$REFLECTOMETER_SOCKET`, else systemd's
@@ -186,8 +189,11 @@ async fn handle(stream: UnixStream, job: Arc<Mutex<Option<Running>>>) -> Result<
     };
     match req {
         Request::Status => {
-            let busy = job.lock().unwrap_or_else(|p| p.into_inner()).as_ref().map(|r| r.info.clone());
-            send_line(&mut w, &serde_json::json!({ "busy": busy })).await?;
+            let (busy, progress) = match job.lock().unwrap_or_else(|p| p.into_inner()).as_ref() {
+                Some(r) => (Some(r.info.clone()), r.progress.clone()),
+                None => (None, None),
+            };
+            send_line(&mut w, &serde_json::json!({ "busy": busy, "progress": progress })).await?;
         }
         Request::Cancel => {
             let c = job.lock().unwrap_or_else(|p| p.into_inner()).as_ref().map(|r| r.cancel.clone());
@@ -206,7 +212,7 @@ async fn handle(stream: UnixStream, job: Arc<Mutex<Option<Running>>>) -> Result<
                         r.info.out.as_ref().map_or("?".into(), |p| p.display().to_string())
                     )),
                     None => {
-                        *g = Some(Running { info: info.clone(), cancel: cancel_tx });
+                        *g = Some(Running { info: info.clone(), cancel: cancel_tx, progress: None });
                         None
                     }
                 }
@@ -220,7 +226,13 @@ async fn handle(stream: UnixStream, job: Arc<Mutex<Option<Running>>>) -> Result<
             let (tx, mut rx) = mpsc::unbounded_channel::<Event>();
             let job2 = job.clone();
             let worker = tokio::spawn(async move {
+                let latest = job2.clone();
                 let mut rep = Reporter::new(Mode::Plain).forward_to(move |e| {
+                    if matches!(e, Event::Frames { .. } | Event::Fit(_)) {
+                        if let Some(r) = latest.lock().unwrap_or_else(|p| p.into_inner()).as_mut() {
+                            r.progress = Some(e.clone());
+                        }
+                    }
                     let _ = tx.send(e.clone());
                 });
                 let r = capture::run(request, &mut rep, cancel_rx).await;

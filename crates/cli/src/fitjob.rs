@@ -9,7 +9,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::thread::JoinHandle;
 
 use anyhow::{Result, anyhow};
-use fit::{FitContext, FitInputs, FitResult, FitSettings, Pipeline, Stages};
+use fit::{FitContext, FitInputs, FitProgress, FitResult, FitSettings, Pipeline, Stages};
 use tokio::sync::mpsc;
 
 pub use assess::replay::{FrameMsg, fit_inputs};
@@ -22,6 +22,7 @@ pub struct FitJob {
     tx: Option<mpsc::Sender<FrameMsg>>,
     handle: Option<JoinHandle<Result<FitResult>>>,
     stop: Arc<AtomicBool>,
+    progress: Arc<FitProgress>,
 }
 
 impl Drop for FitJob {
@@ -37,17 +38,24 @@ impl FitJob {
         let (tx, rx) = mpsc::channel::<FrameMsg>(32);
         let stop = Arc::new(AtomicBool::new(false));
         let stop2 = stop.clone();
+        let progress = Arc::new(FitProgress::new());
+        let progress2 = progress.clone();
         let handle = std::thread::Builder::new()
             .name("fitter".into())
-            .spawn(move || run(inputs, settings, stages, rx, &stop2))
+            .spawn(move || run(inputs, settings, stages, rx, &stop2, progress2))
             .map_err(|e| anyhow!("cannot start the fitter thread: {e}"));
         match handle {
-            Ok(h) => Self { tx: Some(tx), handle: Some(h), stop },
+            Ok(h) => Self { tx: Some(tx), handle: Some(h), stop, progress },
             Err(e) => {
                 tracing::error!("{e}");
-                Self { tx: None, handle: None, stop }
+                Self { tx: None, handle: None, stop, progress }
             }
         }
+    }
+
+    /// Where the fit is (its stages after ingest), for a display to poll.
+    pub fn progress(&self) -> Arc<FitProgress> {
+        self.progress.clone()
     }
 
     fn sender(&self) -> Result<&mpsc::Sender<FrameMsg>> {
@@ -88,8 +96,9 @@ fn run(
     stages: Stages,
     mut rx: mpsc::Receiver<FrameMsg>,
     stop: &AtomicBool,
+    progress: Arc<FitProgress>,
 ) -> Result<FitResult> {
-    let ctx = FitContext::new(inputs);
+    let ctx = FitContext::new(inputs).with_progress(progress);
     let mut pipeline = Pipeline::new(&ctx, settings, stages);
     while let Some(msg) = rx.blocking_recv() {
         msg.feed(&mut pipeline);

@@ -13,7 +13,7 @@ use tokio::sync::watch;
 
 use crate::Interrupted;
 use crate::fitjob::FitJob;
-use crate::progress::Reporter;
+use crate::progress::{Event, Reporter};
 
 /// Flag counts over the grid, by name.
 pub fn flag_counts(flags: &[u32]) -> std::collections::BTreeMap<String, usize> {
@@ -52,6 +52,9 @@ pub fn stop_requested(stop: &watch::Receiver<bool>) -> impl Fn() -> bool + '_ {
     move || *stop.borrow()
 }
 
+/// How often a running fit's progress is reported.
+const FIT_PROGRESS_EVERY: std::time::Duration = std::time::Duration::from_millis(500);
+
 /// Wait for the fitter, then write the material and its preview renders.
 /// A stop request ends the wait at once (the fitter thread gives up at its
 /// next stage) and is returned as [`Interrupted`]; nothing half-written is
@@ -70,10 +73,29 @@ pub async fn finish_fit(
         rep.stage("fit", "per-point NDFs (diffuse, specular, masking, Fresnel)");
         let t = Instant::now();
         let mut watch_stop = stop.clone();
-        let out = tokio::select! {
-            r = job.finish_async() => r?,
-            _ = watch_stop.wait_for(|s| *s) => return Err(Interrupted.into()),
+        let progress = job.progress();
+        let fit = job.finish_async();
+        tokio::pin!(fit);
+        // The stages' progress, as often as a person watching wants it.
+        let mut tick = tokio::time::interval(FIT_PROGRESS_EVERY);
+        let out = loop {
+            tokio::select! {
+                r = &mut fit => {
+                    // Where it ended (every stage's count complete).
+                    if let Some(s) = progress.snapshot() {
+                        rep.emit(Event::Fit(s));
+                    }
+                    break r?;
+                }
+                _ = watch_stop.wait_for(|s| *s) => return Err(Interrupted.into()),
+                _ = tick.tick() => {
+                    if let Some(s) = progress.snapshot() {
+                        rep.emit(Event::Fit(s));
+                    }
+                }
+            }
         };
+        rep.end_fit();
         rep.stage("fit", format!("{} points in {:.1} s after the last frame", out.maps.len(), out.timings.points_s));
         let mut m = assess::replay::material_from(&out, info, q);
         if let (Some(p), Some(prov)) = (&report.partial, m.provenance.as_object_mut()) {

@@ -4,6 +4,7 @@
 use std::io::Write;
 use std::time::Instant;
 
+use fit::FitStage;
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::Serialize;
 
@@ -11,11 +12,27 @@ use serde::Serialize;
 #[derive(Clone, Debug, PartialEq, Serialize, serde::Deserialize)]
 #[serde(tag = "event", rename_all = "snake_case")]
 pub enum Event {
-    Stage { stage: String, detail: String },
-    Frames { done: u64, total: u64, rate_hz: f64, eta_s: f64 },
-    Warning { message: String },
-    Done { summary: serde_json::Value },
-    Error { message: String },
+    Stage {
+        stage: String,
+        detail: String,
+    },
+    Frames {
+        done: u64,
+        total: u64,
+        rate_hz: f64,
+        eta_s: f64,
+    },
+    /// The fit's stage after the last frame and its counts.
+    Fit(fit::progress::Snapshot),
+    Warning {
+        message: String,
+    },
+    Done {
+        summary: serde_json::Value,
+    },
+    Error {
+        message: String,
+    },
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -29,6 +46,8 @@ pub enum Mode {
 pub struct Reporter {
     mode: Mode,
     bar: Option<ProgressBar>,
+    /// The fit's bar and the stage it shows.
+    fit_bar: Option<(ProgressBar, FitStage, Option<FitStage>)>,
     started: Instant,
     last_plain: Instant,
     forward: Option<Box<dyn FnMut(&Event) + Send>>,
@@ -42,7 +61,7 @@ impl std::fmt::Debug for Reporter {
 
 impl Reporter {
     pub fn new(mode: Mode) -> Self {
-        Self { mode, bar: None, started: Instant::now(), last_plain: Instant::now(), forward: None }
+        Self { mode, bar: None, fit_bar: None, started: Instant::now(), last_plain: Instant::now(), forward: None }
     }
 
     /// Choose the mode for this process: JSON if asked, a bar on a
@@ -65,6 +84,9 @@ impl Reporter {
     }
 
     pub fn emit(&mut self, e: Event) {
+        if matches!(e, Event::Done { .. } | Event::Error { .. }) {
+            self.end_fit();
+        }
         if let Some(f) = self.forward.as_mut() {
             f(&e);
         }
@@ -81,6 +103,12 @@ impl Reporter {
                     if self.last_plain.elapsed().as_secs_f64() >= 5.0 || done == total {
                         self.last_plain = Instant::now();
                         tracing::info!("frames {done}/{total} ({rate_hz:.1}/s, about {eta_s:.0} s left)");
+                    }
+                }
+                Event::Fit(f) => {
+                    if self.last_plain.elapsed().as_secs_f64() >= 5.0 || f.done == f.total {
+                        self.last_plain = Instant::now();
+                        tracing::info!("{}", describe_fit(f));
                     }
                 }
                 Event::Stage { stage, detail } => tracing::info!("{stage}: {detail}"),
@@ -109,8 +137,30 @@ impl Reporter {
                         self.bar = None;
                     }
                 }
+                Event::Fit(f) => {
+                    let same = self.fit_bar.as_ref().is_some_and(|(_, s, w)| *s == f.stage && *w == f.within);
+                    if !same {
+                        self.end_fit();
+                        let b = ProgressBar::new(f.total);
+                        b.set_style(
+                            ProgressStyle::with_template("{spinner} fit: {msg} [{bar:30}] {pos}/{len} ETA {eta}")
+                                .unwrap_or_else(|_| ProgressStyle::default_bar())
+                                .progress_chars("=> "),
+                        );
+                        let msg = match f.within {
+                            Some(w) => format!("{} ({})", f.stage.describe(), w.describe()),
+                            None => f.stage.describe().to_string(),
+                        };
+                        b.set_message(msg);
+                        self.fit_bar = Some((b, f.stage, f.within));
+                    }
+                    if let Some((b, ..)) = &self.fit_bar {
+                        b.set_length(f.total);
+                        b.set_position(f.done);
+                    }
+                }
                 Event::Stage { stage, detail } => {
-                    if let Some(b) = &self.bar {
+                    if let Some(b) = self.bar.as_ref().or(self.fit_bar.as_ref().map(|f| &f.0)) {
                         b.println(format!("{stage}: {detail}"));
                     } else {
                         eprintln!("{stage}: {detail}");
@@ -123,6 +173,13 @@ impl Reporter {
         }
     }
 
+    /// The fit is over: clear its bar.
+    pub fn end_fit(&mut self) {
+        if let Some((b, ..)) = self.fit_bar.take() {
+            b.finish_and_clear();
+        }
+    }
+
     pub fn stage(&mut self, stage: &str, detail: impl Into<String>) {
         self.emit(Event::Stage { stage: stage.into(), detail: detail.into() });
     }
@@ -130,6 +187,16 @@ impl Reporter {
     pub fn warn(&mut self, message: impl Into<String>) {
         self.emit(Event::Warning { message: message.into() });
     }
+}
+
+/// One line for a fit's progress: `fit: synthesis 1200/9216 (about 8 s left)`.
+pub fn describe_fit(f: &fit::progress::Snapshot) -> String {
+    let what = match f.within {
+        Some(w) => format!("{} ({})", f.stage.describe(), w.describe()),
+        None => f.stage.describe().to_string(),
+    };
+    let left = f.eta_s.map(|s| format!(", about {s:.0} s left")).unwrap_or_default();
+    format!("fit: {what} {}/{} ({:.0} s in{left})", f.done, f.total, f.elapsed_s)
 }
 
 impl assess::Progress for Reporter {

@@ -95,6 +95,8 @@ pub struct FitContext {
     /// The direction the LEDs shine (`setup::Calibration::led_axis`).
     pub led_axis: Vec3,
     pub led_spacing_mm: f32,
+    /// Where the fit on this context is (watched from other threads).
+    pub progress: std::sync::Arc<crate::FitProgress>,
 }
 
 impl FitContext {
@@ -146,7 +148,24 @@ impl FitContext {
             g.bar.pitch_mm
         };
         let led_axis = inputs.calibration.led_axis();
-        Self { inputs, positions, pixels, view, flat, lights, step_spacing_mm, led_spacing_mm, led_axis }
+        Self {
+            inputs,
+            positions,
+            pixels,
+            view,
+            flat,
+            lights,
+            step_spacing_mm,
+            led_spacing_mm,
+            led_axis,
+            progress: Default::default(),
+        }
+    }
+
+    /// Report the fit's progress into `progress` (which a watcher holds).
+    pub fn with_progress(mut self, progress: std::sync::Arc<crate::FitProgress>) -> Self {
+        self.progress = progress;
+        self
     }
 
     /// Angular spacing (radians) between the half vector of light `q` at

@@ -177,7 +177,9 @@ impl<'a> Pipeline<'a> {
     pub fn finish(self, stop: &dyn Fn() -> bool) -> Result<FitResult, FitError> {
         let frames = self.ingest.frames;
         let t = Instant::now();
+        self.ctx.progress.begin(crate::FitStage::Drift, 1);
         let (store, drift) = self.ingest.finish();
+        self.ctx.progress.advance(1);
         let drift_s = t.elapsed().as_secs_f64();
         let mut r = run_from(self.ctx, store, self.settings, &self.stages, stop, self.last_frame)?;
         r.frames = frames;
@@ -340,11 +342,17 @@ fn choice_scores(
     let stride = (g.cols >= CHOICE_STRIDE_MIN_SIDE && g.rows >= CHOICE_STRIDE_MIN_SIDE).then_some(2);
     let refit = FitSettings { choice_holdout: Some(held), point_stride: stride, ..settings.clone() };
     let mut ignored = Timings::default();
-    let h = fit_stages(ctx, store, &refit, stages, stop, Instant::now(), &mut ignored)?;
+    ctx.progress.begin(crate::FitStage::Choice, 0);
+    ctx.progress.set_refitting(true);
+    let h = fit_stages(ctx, store, &refit, stages, stop, Instant::now(), &mut ignored);
+    ctx.progress.set_refitting(false);
+    let h = h?;
+    ctx.progress.begin(crate::FitStage::Choice, ctx.n_points() as u64);
     let (samples, view): (Vec<Vec<Sample>>, Vec<Vec3>) = (0..ctx.n_points())
         .into_par_iter()
         .map(|p| {
             let ps = crate::points::gather_choice_held_out(ctx, store, p, &refit);
+            ctx.progress.advance(1);
             (ps.samples, ps.o)
         })
         .unzip();
@@ -363,7 +371,7 @@ pub fn synthesis_stage(
     op: &MaskingOperator,
 ) -> (PartialMaps, SynthStats) {
     let eligible: Vec<bool> = maps.flags.iter().map(|f| f & point_flag::NO_SPECULAR == 0).collect();
-    let out = crate::synth::synthesize(&maps.tables, &eligible, synth);
+    let out = crate::synth::synthesize_watched(&maps.tables, &eligible, synth, &ctx.progress);
     let partial = PartialMaps { tables: maps.tables.clone(), ks: maps.ks.clone(), eta: maps.eta.clone() };
     let added: Vec<bool> = out.mass_factor.iter().map(|&k| k != 1.0).collect();
     crate::points::refit_completed(ctx, store, maps, &out.tables, &added, settings, op);
@@ -390,13 +398,17 @@ pub fn analytic_stage(
     stop: &dyn Fn() -> bool,
 ) -> Result<AnalyticOutcome, FitError> {
     let t = Instant::now();
+    // The evidence (samples and clusters) counts as one model's work.
+    ctx.progress.begin(crate::FitStage::Analytic, a.models.len() as u64 + 1);
     let evidence = crate::analytic::evidence(ctx, store, init, settings, a);
+    ctx.progress.advance(1);
     let mut models = Vec::with_capacity(a.models.len());
     for &m in &a.models {
         if stop() {
             return Err(FitError::Stopped);
         }
         models.push(crate::analytic::fit_model(m, init, &evidence));
+        ctx.progress.advance(1);
     }
     Ok(AnalyticOutcome { models, evidence, analytic_s: t.elapsed().as_secs_f64() })
 }

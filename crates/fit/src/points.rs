@@ -89,11 +89,14 @@ fn gather_where(
 /// Fit every point (parallel over points).
 pub fn fit_points(ctx: &FitContext, store: &SampleStore, settings: &FitSettings, op: &MaskingOperator) -> PointMaps {
     let n = ctx.n_points();
+    ctx.progress.begin(crate::FitStage::Points, n as u64);
     let fits: Vec<_> = (0..n)
         .into_par_iter()
         .map_init(Scratch::default, |scratch, p| {
             let ps = gather(ctx, store, p, settings);
-            fit_point(&ps, settings, op, scratch)
+            let f = fit_point(&ps, settings, op, scratch);
+            ctx.progress.advance(1);
+            f
         })
         .collect();
     let mut maps = PointMaps {
@@ -129,12 +132,15 @@ pub fn refit_completed(
     op: &MaskingOperator,
 ) -> usize {
     let todo: Vec<usize> = (0..maps.len()).filter(|&p| added.get(p).copied().unwrap_or(false)).collect();
+    ctx.progress.begin(crate::FitStage::Refit, todo.len() as u64);
     let fits: Vec<_> = todo
         .par_iter()
         .map_init(Scratch::default, |scratch, &p| {
             let ps = gather(ctx, store, p, settings);
             let table = completed.get(p);
-            refit_point(&ps, settings, op, scratch, &table)
+            let f = refit_point(&ps, settings, op, scratch, &table);
+            ctx.progress.advance(1);
+            f
         })
         .collect();
     for (&p, f) in todo.iter().zip(fits) {

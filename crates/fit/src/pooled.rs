@@ -122,10 +122,16 @@ pub fn pool(
         members[assign[j] as usize].push(p);
     }
     let maps_ref = &*maps;
+    let pooled_points = members.iter().filter(|m| m.len() >= 2).map(Vec::len).sum::<usize>();
+    ctx.progress.begin(crate::FitStage::Pooling, pooled_points as u64);
     let results: Vec<Vec<(usize, NdfTable, f32)>> = members
         .par_iter()
         .filter(|m| m.len() >= 2)
-        .map(|m| pool_cluster(ctx, store, maps_ref, settings, op, m, observed))
+        .map(|m| {
+            let r = pool_cluster(ctx, store, maps_ref, settings, op, m, observed);
+            ctx.progress.advance(m.len() as u64);
+            r
+        })
         .collect();
     let mut stats = PoolStats { clusters: results.len(), ..PoolStats::default() };
     for (p, table, k_s) in results.into_iter().flatten() {

@@ -158,8 +158,19 @@ fn top(mut v: Vec<Match>, k: usize) -> Vec<Match> {
 
 /// Complete the tables of the `eligible` points.
 pub fn synthesize(input: &TableSet, eligible: &[bool], s: &SynthSettings) -> SynthOutput {
+    synthesize_watched(input, eligible, s, &crate::FitProgress::new())
+}
+
+/// [`synthesize`], counting each point's search of each pass in `progress`.
+pub fn synthesize_watched(
+    input: &TableSet,
+    eligible: &[bool],
+    s: &SynthSettings,
+    progress: &crate::FitProgress,
+) -> SynthOutput {
     let grid = input.grid();
     let points: Vec<usize> = (0..input.len()).filter(|&p| eligible.get(p).copied().unwrap_or(false)).collect();
+    progress.begin(crate::FitStage::Synthesis, (points.len() * s.passes.max(1) as usize) as u64);
     let mut tables = input.clone();
     let mut mass = vec![1.0f32; input.len()];
     let mut stats = SynthStats { points: points.len(), ..SynthStats::default() };
@@ -207,6 +218,7 @@ pub fn synthesize(input: &TableSet, eligible: &[bool], s: &SynthSettings) -> Syn
                                 found.push(m);
                             }
                         }
+                        progress.advance(1);
                         top(found, blend)
                     })
                     .collect()
@@ -258,6 +270,7 @@ pub fn synthesize(input: &TableSet, eligible: &[bool], s: &SynthSettings) -> Syn
                                 found.push(m);
                             }
                         }
+                        progress.advance(1);
                         top(found, blend)
                     })
                     .collect()
