@@ -16,6 +16,11 @@ for p in build-essential pkg-config libclang-dev qemu-system-x86 busybox-static 
 done
 # The guest's kernel is Debian's linux-image-amd64, downloaded (not
 # installed) by vm-test.sh: apt must know the package.
+# The Python examples' tier (scripts/python-test.sh) makes a virtual
+# environment: Debian's python3 needs python3-venv for that.
+if ! python3 -m venv --help >/dev/null 2>&1 || ! python3 -c "import ensurepip" >/dev/null 2>&1; then
+  need_pkgs+=(python3-venv)
+fi
 kernel_known() { apt-cache depends linux-image-amd64 2>/dev/null | grep "Depends: linux-image-[0-9]" >/dev/null; }
 
 if [ "${#need_pkgs[@]}" -gt 0 ] || ! kernel_known; then

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The whole test suite, from a fresh clone: system packages, the workspace's
 # tests (end-to-end runs of the binaries included), the firmware protocol's
-# no_std build, the V4L2 backend against the kernel's vivid driver in a QEMU
+# no_std build, the Python examples, the V4L2 backend against the kernel's vivid driver in a QEMU
 # guest, and the daemon's systemd unit.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -10,6 +10,8 @@ export CARGO_TERM_COLOR=never
 # Proves firmware-protocol is no_std and allocation-free (see PROTOCOL.md).
 cargo build --quiet --manifest-path firmware-protocol/nostd-check/Cargo.toml
 cargo test --workspace --no-fail-fast
+# The Python examples in a fresh virtual environment, against refl.
+bash scripts/python-test.sh
 # The V4L2 tests (not a `cargo test` target: this kernel has no V4L2) in a QEMU guest.
 bash scripts/vm-test.sh
 # The shipped systemd unit, checked against the freshly built daemon.

@@ -78,6 +78,49 @@ fn capture_fits_renders_and_every_refl_tool_reads_it() {
     let o = lab.refl(&["render", s(&dir), "--model", "nonesuch", "-o", s(&png)]);
     assert!(!o.status.success());
     assert!(stderr(&o).contains("ward_iso"), "the error lists the models it has: {}", stderr(&o));
+
+    // The samples as NumPy arrays (their contents are checked against refl
+    // from Python by scripts/python-test.sh): a zip of .npy files, and an
+    // existing file is never replaced.
+    let npz = lab.path("satin.npz");
+    assert_ok(&lab.refl(&["export-samples", s(&dir), "-o", s(&npz), "--stride", "2"]), "refl export-samples");
+    let bytes = std::fs::read(&npz).unwrap();
+    assert!(bytes.starts_with(b"PK\x03\x04"), "not a zip archive");
+    for name in ["light.npy", "rho.npy", "weight.npy", "flags.npy", "view.npy", "position_mm.npy"] {
+        assert!(bytes.windows(name.len()).any(|w| w == name.as_bytes()), "{name} missing");
+    }
+    let o = lab.refl(&["export-samples", s(&dir), "-o", s(&npz)]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("exists"), "{}", stderr(&o));
+    assert_eq!(std::fs::read(&npz).unwrap(), bytes, "the existing file was touched");
+    let o = lab.refl(&["export-samples", s(&dir), "-o", s(&lab.path("b.npz")), "--stride", "0"]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(!lab.path("b.npz").exists());
+
+    // One point's BRDF on stdin directions: light from the mirror direction
+    // of the view reflects more than light from the side.
+    let mut brdf = lab
+        .cmd(REFL)
+        .args(["brdf", s(&dir), "--point", "6,6"])
+        .stdin(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    use std::io::Write as _;
+    brdf.stdin
+        .take()
+        .unwrap()
+        .write_all(b"0.5 0 0.8660254 -0.5 0 0.8660254\n0 0.5 0.8660254 -0.5 0 0.8660254\n")
+        .unwrap();
+    let o = brdf.wait_with_output().unwrap();
+    assert_ok(&o, "refl brdf");
+    let v: Vec<f64> = String::from_utf8_lossy(&o.stdout).split_whitespace().map(|x| x.parse().unwrap()).collect();
+    assert_eq!(v.len(), 6, "{v:?}");
+    assert!(v.iter().all(|x| x.is_finite() && *x >= 0.0), "{v:?}");
+    assert!(v[1] > v[4], "specular {} against off-specular {}", v[1], v[4]);
+    let o = lab.refl(&["brdf", s(&dir), "--point", "12,0"]);
+    assert_eq!(o.status.code(), Some(2), "a point off the 12 x 12 grid: {}", stderr(&o));
 }
 
 /// A simulated rig like the default one, but whose LEDs do not drift: the

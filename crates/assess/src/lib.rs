@@ -10,7 +10,8 @@
 //! - `tradeoff`: the speed/accuracy sweep over the quality presets.
 //! - `bench`: the fitter's and the simulator's benchmarks; `budget`: the
 //!   fitter's error by source.
-//! - `inspect`, `gltf`: a material's summary and its glTF export.
+//! - `inspect`, `gltf`: a material's summary and its glTF export;
+//!   `export`: a capture's calibrated samples as NumPy arrays.
 //!
 //! These are the application's tools, not its job: they sit below
 //! `crates/cli` (which drives the capture and the daemon) and, like it,
@@ -19,6 +20,7 @@
 pub mod bench;
 pub mod budget;
 pub mod eval;
+pub mod export;
 pub mod gltf;
 pub mod inspect;
 pub mod renders;

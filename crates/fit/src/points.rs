@@ -49,10 +49,7 @@ fn gather_where(
     keep: impl Fn(usize) -> bool,
 ) -> PointSamples {
     let inputs = &ctx.inputs;
-    let exposures = &inputs.plan.exposures_us;
-    let gain = inputs.plan.gain.max(crate::tol::MIN_DIVISOR);
-    let read = inputs.calibration.read_noise_dn.iter().sum::<f32>() / 3.0;
-    let e_per_dn = inputs.e_per_dn.max(crate::tol::MIN_DIVISOR);
+    let noise = SampleNoise::new(ctx);
     let in_view = ctx.pixels[p].is_some() && settings.fits_point(&inputs.grid, p);
     let mut ps = PointSamples { o: ctx.view[p], in_view, ..PointSamples::default() };
     if !in_view {
@@ -70,20 +67,57 @@ fn gather_where(
                 ps.saturated += 1;
             }
         }
-        if fl & flag::UNUSABLE != 0 || rho.iter().any(|v| !v.is_finite()) {
-            continue;
-        }
-        let Some(g) = ctx.sample(p, q) else { continue };
-        let e = SampleStore::exposure_of(fl) as usize;
-        let t = exposures.get(e).copied().unwrap_or(exposures[0]) as f32 * 1e-6;
-        // rho = (DN - dark) * k; Var(DN) = read^2 + (DN - dark) gain / e_per_dn.
-        let k = g.to_rho / (t * gain);
-        let l = crate::partial::LUMA.iter().zip(&rho).map(|(w, r)| w * r).sum::<f32>().max(0.0);
-        let var = k * k * read * read + k * l * gain / e_per_dn;
+        let Some((g, var)) = noise.usable(ctx, p, q, rho, fl) else { continue };
         let kernel_rad = settings.kernel_scale * ctx.half_vector_spacing(p, q);
-        ps.samples.push(Sample { i: g.i, rho, var: var.max(crate::tol::MIN_VARIANCE), kernel_rad });
+        ps.samples.push(Sample { i: g.i, rho, var, kernel_rad });
     }
     ps
+}
+
+/// The noise of a capture's samples: shot and read noise carried through
+/// the exposure, gain and calibration into reflectance.
+#[derive(Clone, Debug)]
+pub struct SampleNoise {
+    exposures_us: Vec<u32>,
+    gain: f32,
+    read_dn: f32,
+    e_per_dn: f32,
+}
+
+impl SampleNoise {
+    pub fn new(ctx: &FitContext) -> Self {
+        let inputs = &ctx.inputs;
+        Self {
+            exposures_us: inputs.plan.exposures_us.clone(),
+            gain: inputs.plan.gain.max(crate::tol::MIN_DIVISOR),
+            read_dn: inputs.calibration.read_noise_dn.iter().sum::<f32>() / 3.0,
+            e_per_dn: inputs.e_per_dn.max(crate::tol::MIN_DIVISOR),
+        }
+    }
+
+    /// Whether the sample of light `q` at point `p` (reflectance `rho`,
+    /// flag byte `fl`) is one the fitter uses, and if so its geometry and
+    /// the variance of its luminance reflectance.
+    pub fn usable(
+        &self,
+        ctx: &FitContext,
+        p: usize,
+        q: usize,
+        rho: [f32; 3],
+        fl: u8,
+    ) -> Option<(crate::context::SampleGeometry, f32)> {
+        if fl & flag::UNUSABLE != 0 || rho.iter().any(|v| !v.is_finite()) {
+            return None;
+        }
+        let g = ctx.sample(p, q)?;
+        let e = SampleStore::exposure_of(fl) as usize;
+        let t = self.exposures_us.get(e).or(self.exposures_us.first()).copied().unwrap_or(1) as f32 * 1e-6;
+        // rho = (DN - dark) * k; Var(DN) = read^2 + (DN - dark) gain / e_per_dn.
+        let k = g.to_rho / (t * self.gain);
+        let l = crate::partial::LUMA.iter().zip(&rho).map(|(w, r)| w * r).sum::<f32>().max(0.0);
+        let var = k * k * self.read_dn * self.read_dn + k * l * self.gain / self.e_per_dn;
+        Some((g, var.max(crate::tol::MIN_VARIANCE)))
+    }
 }
 
 /// Fit every point (parallel over points).

@@ -128,6 +128,33 @@ enum Cmd {
     /// material: the NDF from its retro-reflection slice, the diffuse and
     /// specular albedo and Fresnel index fitted to the whole BRDF.
     ImportMerl(ImportArgs),
+    /// Write a capture's calibrated samples as NumPy arrays (.npz): light
+    /// and view directions in the local frame, the measured BRDF per
+    /// channel, weights, flags, each point's position (arrays listed in
+    /// MATERIAL.md). The frames are replayed through the fitter's ingest.
+    ExportSamples {
+        /// Capture directory.
+        dir: std::path::PathBuf,
+        /// Output `.npz` (a new file; an existing one is refused).
+        #[arg(long, short)]
+        out: std::path::PathBuf,
+        /// Every N-th point along each axis of the grid.
+        #[arg(long, default_value_t = 1)]
+        stride: u32,
+    },
+    /// Evaluate one point's BRDF: reads lines `ix iy iz ox oy oz` (unit
+    /// directions toward the light and the viewer, local frame) on stdin
+    /// and prints `r g b` for each.
+    Brdf {
+        /// A material directory, or a capture directory holding `material/`.
+        dir: std::path::PathBuf,
+        /// The grid point, `COL,ROW` (row 0 the sample's +y edge).
+        #[arg(long)]
+        point: String,
+        /// Model: tabulated, partial, auto or an analytic fit's name.
+        #[arg(long, default_value = "tabulated")]
+        model: String,
+    },
     /// Print performance figures (see each benchmark's --help).
     Bench {
         #[command(subcommand)]
@@ -406,6 +433,71 @@ fn main() -> ExitCode {
                 let m = material::read(&dir).with_context(|| format!("reading {}", dir.display()))?;
                 for f in assess::gltf::export(&m, &out)? {
                     println!("{}", f.display());
+                }
+                Ok(())
+            }
+            Cmd::ExportSamples { dir, out, stride } => {
+                if out.exists() {
+                    return Err(cli::usage(anyhow::anyhow!(
+                        "{} exists; nothing was written (remove it or choose another name)",
+                        out.display()
+                    )));
+                }
+                if stride == 0 {
+                    return Err(cli::usage(anyhow::anyhow!("--stride must be at least 1")));
+                }
+                let mut rep = cli::progress::Reporter::auto(false);
+                let e = tokio::task::block_in_place(|| assess::export::export_samples(&dir, &out, stride, &mut rep))?;
+                println!(
+                    "{}: {} points x {} lights, {} usable samples, {:.1} MB",
+                    e.file.display(),
+                    e.points,
+                    e.lights,
+                    e.usable,
+                    e.bytes as f64 / 1e6
+                );
+                Ok(())
+            }
+            Cmd::Brdf { dir, point, model } => {
+                use std::io::BufRead;
+                let dir = if dir.join("material").is_dir() { dir.join("material") } else { dir };
+                let m =
+                    std::sync::Arc::new(material::read(&dir).with_context(|| format!("reading {}", dir.display()))?);
+                let choice = assess::renders::model_by_name(&m, &model).map_err(cli::usage)?;
+                let (c, r) = assess::renders::parse_pair(&point)
+                    .map_err(|e| cli::usage(anyhow::anyhow!("--point: {e}")))
+                    .and_then(|(c, r)| {
+                        if c.fract() == 0.0 && r.fract() == 0.0 {
+                            Ok((c as i64, r as i64))
+                        } else {
+                            Err(cli::usage(anyhow::anyhow!("--point {point}: COL,ROW are whole numbers")))
+                        }
+                    })?;
+                if c < 0 || r < 0 || c >= m.grid.cols as i64 || r >= m.grid.rows as i64 {
+                    return Err(cli::usage(anyhow::anyhow!(
+                        "--point {point}: the grid is {} x {} (COL,ROW from 0)",
+                        m.grid.cols,
+                        m.grid.rows
+                    )));
+                }
+                let view = material::MaterialView::new(m.clone(), choice)
+                    .ok_or_else(|| cli::usage(anyhow::anyhow!("the material has no model '{model}'")))?;
+                let f = view.point((r * m.grid.cols as i64 + c) as usize);
+                for (k, line) in std::io::stdin().lock().lines().enumerate() {
+                    let line = line?;
+                    let v: Vec<f32> =
+                        line.split_whitespace().map(str::parse).collect::<Result<_, _>>().map_err(|e| {
+                            cli::usage(anyhow::anyhow!("line {}: {e}: expected ix iy iz ox oy oz", k + 1))
+                        })?;
+                    let [ix, iy, iz, ox, oy, oz] = v[..] else {
+                        return Err(cli::usage(anyhow::anyhow!(
+                            "line {}: {} numbers; expected ix iy iz ox oy oz",
+                            k + 1,
+                            v.len()
+                        )));
+                    };
+                    let rgb = brdf::Brdf::eval(&f, glam::Vec3::new(ix, iy, iz), glam::Vec3::new(ox, oy, oz));
+                    println!("{:e} {:e} {:e}", rgb.x, rgb.y, rgb.z);
                 }
                 Ok(())
             }
