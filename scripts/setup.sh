@@ -11,16 +11,21 @@ have() { dpkg -s "$1" >/dev/null 2>&1; }
 # The V4L2 test tier (scripts/vm-test.sh): QEMU, a static busybox for the
 # guest, cpio for its initramfs, kmod to order the kernel's modules, xz in
 # case they are compressed.
-for p in build-essential pkg-config libclang-dev qemu-system-x86 busybox-static cpio kmod xz-utils; do
+# The formats tier (scripts/formats-test.sh): OpenImageIO's oiiotool, and
+# node with npm for the Khronos glTF validator.
+for p in build-essential pkg-config libclang-dev qemu-system-x86 busybox-static cpio kmod xz-utils openimageio-tools; do
   have "$p" || need_pkgs+=("$p")
 done
-# The guest's kernel is Debian's linux-image-amd64, downloaded (not
-# installed) by vm-test.sh: apt must know the package.
+if ! command -v npm >/dev/null 2>&1; then
+  need_pkgs+=(npm)
+fi
 # The Python examples' tier (scripts/python-test.sh) makes a virtual
 # environment: Debian's python3 needs python3-venv for that.
 if ! python3 -m venv --help >/dev/null 2>&1 || ! python3 -c "import ensurepip" >/dev/null 2>&1; then
   need_pkgs+=(python3-venv)
 fi
+# The guest's kernel is Debian's linux-image-amd64, downloaded (not
+# installed) by vm-test.sh: apt must know the package.
 kernel_known() { apt-cache depends linux-image-amd64 2>/dev/null | grep "Depends: linux-image-[0-9]" >/dev/null; }
 
 if [ "${#need_pkgs[@]}" -gt 0 ] || ! kernel_known; then

@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The whole test suite, from a fresh clone: system packages, the workspace's
 # tests (end-to-end runs of the binaries included), the firmware protocol's
-# no_std build, the Python examples, the V4L2 backend against the kernel's vivid driver in a QEMU
+# no_std build, the Python examples, the exported formats in their
+# tools, the V4L2 backend against the kernel's vivid driver in a QEMU
 # guest, and the daemon's systemd unit.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -12,6 +13,8 @@ cargo build --quiet --manifest-path firmware-protocol/nostd-check/Cargo.toml
 cargo test --workspace --no-fail-fast
 # The Python examples in a fresh virtual environment, against refl.
 bash scripts/python-test.sh
+# The glTF and EXR files through the Khronos validator and oiiotool.
+bash scripts/formats-test.sh
 # The V4L2 tests (not a `cargo test` target: this kernel has no V4L2) in a QEMU guest.
 bash scripts/vm-test.sh
 # The shipped systemd unit, checked against the freshly built daemon.

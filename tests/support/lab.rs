@@ -94,7 +94,7 @@ pub fn same_files(a: &Path, b: &Path, names: &[&str]) {
 }
 
 pub const MATERIAL_FILES: &[&str] =
-    &["maps.exr", "ndf.exr", "ndf_partial.exr", "model_ward_iso.exr", "model_ward_aniso.exr"];
+    &["maps.exr", "ndf.exr", "ndf_atlas.exr", "ndf_partial.exr", "model_ward_iso.exr", "model_ward_aniso.exr"];
 
 /// Wait until `path` holds at least `bytes` bytes while `child` runs.
 pub fn wait_for_bytes(child: &mut std::process::Child, path: &Path, bytes: u64) {

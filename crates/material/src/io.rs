@@ -156,6 +156,54 @@ fn write_tables(path: &Path, t: &TableSet) -> Result<(), MaterialError> {
     )
 }
 
+/// Pixels per side of a point's tile in `ndf_atlas.exr`, per ring of its
+/// table: two across each ring's width.
+const ATLAS_PX_PER_RING: usize = 2;
+
+/// `ndf_atlas.exr`: every point's table as a top view of its hemisphere,
+/// one square tile per point laid out as the grid (row 0 the `+y` edge, as
+/// `maps.exr`), for people to look at. In a tile, `x` is right and `y` up;
+/// the distance from the centre is `sqrt(theta / (pi/2))` of the tile's
+/// half width (the tables' own ring spacing), so each ring is equally wide.
+/// Channels `D` (the table, interpolated as it is evaluated) and
+/// `observed`; 0 outside the disk.
+fn write_atlas(path: &Path, t: &TableSet, grid: setup::PointGrid) -> Result<(), MaterialError> {
+    let g = t.grid();
+    let side = ATLAS_PX_PER_RING * 2 * g.n_theta as usize;
+    let (cols, rows) = (grid.cols as usize, grid.rows as usize);
+    let (w, h) = (cols * side, rows * side);
+    let mut d = vec![f16::ZERO; w * h];
+    let mut observed = vec![f16::ZERO; w * h];
+    // Each tile pixel's half vector, once.
+    let dirs: Vec<Option<(glam::Vec3, usize)>> = (0..side * side)
+        .map(|k| {
+            let (x, y) = (k % side, k / side);
+            let u = 2.0 * (x as f32 + 0.5) / side as f32 - 1.0;
+            let v = 1.0 - 2.0 * (y as f32 + 0.5) / side as f32;
+            let r = u.hypot(v);
+            if r > 1.0 {
+                return None;
+            }
+            let theta = r * r * std::f32::consts::FRAC_PI_2;
+            let phi = v.atan2(u);
+            let hv = glam::Vec3::new(theta.sin() * phi.cos(), theta.sin() * phi.sin(), theta.cos());
+            let (ti, pi) = g.cell(hv)?;
+            Some((hv, g.index(ti, pi)))
+        })
+        .collect();
+    for p in 0..t.len() {
+        let table = t.get(p);
+        let (tx, ty) = ((p % cols) * side, (p / cols) * side);
+        for (k, dir) in dirs.iter().enumerate() {
+            let Some((hv, cell)) = dir else { continue };
+            let at = (ty + k / side) * w + tx + k % side;
+            d[at] = f16::from_f32(table.eval(*hv));
+            observed[at] = f16::from_f32(if table.coverage().get(*cell) { 1.0 } else { 0.0 });
+        }
+    }
+    write_channels(path, w, h, vec![("D".into(), FlatSamples::F16(d)), ("observed".into(), FlatSamples::F16(observed))])
+}
+
 fn read_tables(path: &Path, grid: NdfGrid, n: usize) -> Result<TableSet, MaterialError> {
     let (w, h, mut ch) = read_channels(path)?;
     let cells = grid.len();
@@ -194,7 +242,7 @@ pub enum WriteMode {
 
 /// Is `name` a file a material directory holds (one [`write`] makes)?
 fn is_material_file(name: &str) -> bool {
-    matches!(name, "material.json" | "maps.exr" | "ndf.exr" | "ndf_partial.exr")
+    matches!(name, "material.json" | "maps.exr" | "ndf.exr" | "ndf_atlas.exr" | "ndf_partial.exr")
         || (name.starts_with("model_") && name.ends_with(".exr"))
 }
 
@@ -340,6 +388,7 @@ fn write_into(dir: &Path, m: &Material) -> Result<(), MaterialError> {
     let ndf = match &m.ndf {
         Some(t) => {
             write_tables(&dir.join("ndf.exr"), t)?;
+            write_atlas(&dir.join("ndf_atlas.exr"), t, m.grid)?;
             Some(NdfEntry { file: "ndf.exr".into(), grid: t.grid(), kind: m.ndf_kind })
         }
         None => None,

@@ -150,3 +150,52 @@ fn writing_never_removes_what_it_did_not_write() {
     assert!(e.to_string().contains("README"), "{e}");
     assert_eq!(snapshot(d.path()), before);
 }
+
+/// `ndf_atlas.exr` is each point's table where MATERIAL.md says: the tile
+/// of grid point (col, row), `x` right and `y` up, a half vector at polar
+/// angle theta drawn at `sqrt(theta / (pi/2))` of the half width.
+#[test]
+fn the_ndf_atlas_draws_each_points_table_where_the_format_says() {
+    use exr::prelude::{ReadChannels, ReadLayers};
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path().join("material");
+    let m = sample_material();
+    material::write(&dir, &m, WriteMode::New).unwrap();
+    let img = exr::prelude::read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .all_channels()
+        .first_valid_layer()
+        .all_attributes()
+        .from_file(dir.join("ndf_atlas.exr"))
+        .unwrap();
+    let (w, h) = (img.layer_data.size.0, img.layer_data.size.1);
+    let tables = m.ndf.as_ref().unwrap();
+    let side = 4 * tables.grid().n_theta as usize;
+    assert_eq!((w, h), (4 * side, 3 * side));
+    let channel = |name: &str| -> Vec<f32> {
+        let c = img.layer_data.channel_data.list.iter().find(|c| c.name.to_string() == name).unwrap();
+        c.sample_data.values_as_f32().collect()
+    };
+    let (dv, obs) = (channel("D"), channel("observed"));
+    for k in 0..m.grid.len() {
+        let t = tables.get(k);
+        let (c, r) = (k % 4, k / 4);
+        // A pixel up and to the right of the centre, and a corner outside
+        // the disk.
+        for (x, y) in [(side * 7 / 10, side * 3 / 10), (side / 2 + 1, side / 2 - 3), (side / 5, side * 4 / 5)] {
+            let u = 2.0 * (x as f32 + 0.5) / side as f32 - 1.0;
+            let v = 1.0 - 2.0 * (y as f32 + 0.5) / side as f32;
+            let rr = u.hypot(v);
+            let theta = rr * rr * std::f32::consts::FRAC_PI_2;
+            let hv = glam::Vec3::new(theta.sin() * v.atan2(u).cos(), theta.sin() * v.atan2(u).sin(), theta.cos());
+            let at = (r * side + y) * w + c * side + x;
+            let want = t.eval(hv);
+            assert!((dv[at] - want).abs() <= 2e-3 * want.abs() + 1e-6, "point {k} ({x},{y}): {} vs {want}", dv[at]);
+            let (ti, pi) = t.grid().cell(hv).unwrap();
+            assert_eq!(obs[at] > 0.5, t.coverage().get(t.grid().index(ti, pi)), "point {k} ({x},{y})");
+        }
+        let corner = (r * side) * w + c * side;
+        assert_eq!((dv[corner], obs[corner]), (0.0, 0.0), "outside the disk");
+    }
+}
