@@ -147,11 +147,7 @@ impl Reporter {
                                 .unwrap_or_else(|_| ProgressStyle::default_bar())
                                 .progress_chars("=> "),
                         );
-                        let msg = match f.within {
-                            Some(w) => format!("{} ({})", f.stage.describe(), w.describe()),
-                            None => f.stage.describe().to_string(),
-                        };
-                        b.set_message(msg);
+                        b.set_message(fit_label(f));
                         self.fit_bar = Some((b, f.stage, f.within));
                     }
                     if let Some((b, ..)) = &self.fit_bar {
@@ -189,12 +185,17 @@ impl Reporter {
     }
 }
 
-/// One line for a fit's progress: `fit: synthesis 1200/9216 (about 8 s left)`.
-pub fn describe_fit(f: &fit::progress::Snapshot) -> String {
-    let what = match f.within {
+/// The stage a fit is in: `model choice (pooled NDFs)`.
+fn fit_label(f: &fit::progress::Snapshot) -> String {
+    match f.within {
         Some(w) => format!("{} ({})", f.stage.describe(), w.describe()),
         None => f.stage.describe().to_string(),
-    };
+    }
+}
+
+/// One line for a fit's progress: `fit: synthesis 1200/9216 (about 8 s left)`.
+pub fn describe_fit(f: &fit::progress::Snapshot) -> String {
+    let what = fit_label(f);
     let left = f.eta_s.map(|s| format!(", about {s:.0} s left")).unwrap_or_default();
     format!("fit: {what} {}/{} ({:.0} s in{left})", f.done, f.total, f.elapsed_s)
 }
