@@ -166,3 +166,18 @@ impl AnalyticModel {
         Some(b)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::AnalyticModel;
+
+    /// MATERIAL.md lists every model's channels as the format stores them.
+    #[test]
+    fn the_format_document_lists_every_models_channels() {
+        let doc = include_str!("../../../MATERIAL.md");
+        for m in AnalyticModel::ALL {
+            let row = format!("| `{}` | `{}` |", m.name(), m.shape_names().join(" "));
+            assert!(doc.contains(&row), "MATERIAL.md lacks the row {row}");
+        }
+    }
+}
