@@ -106,8 +106,10 @@ pub async fn finish_fit(
         if *stop.borrow() {
             return Err(Interrupted.into());
         }
+        let written = Instant::now();
         tokio::task::block_in_place(|| material::write(&dir, &m, material::WriteMode::Replace))
             .with_context(|| format!("writing {}", dir.display()))?;
+        report.time("material_write_s", written.elapsed().as_secs_f64());
         report.time("fit_ingest_s", out.timings.ingest_s);
         report.time("fit_drift_s", out.timings.drift_s);
         report.time("fit_points_s", out.timings.points_s);

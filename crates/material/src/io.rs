@@ -97,14 +97,20 @@ fn write_channels(
     height: usize,
     channels: Vec<(String, FlatSamples)>,
 ) -> Result<(), MaterialError> {
+    write_encoded(path, width, height, channels, Encoding::SMALL_LOSSLESS)
+}
+
+fn write_encoded(
+    path: &Path,
+    width: usize,
+    height: usize,
+    channels: Vec<(String, FlatSamples)>,
+    encoding: Encoding,
+) -> Result<(), MaterialError> {
     let list: Vec<AnyChannel<FlatSamples>> =
         channels.into_iter().map(|(n, s)| AnyChannel::new(n.as_str(), s)).collect();
-    let layer = Layer::new(
-        (width, height),
-        LayerAttributes::default(),
-        Encoding::SMALL_LOSSLESS,
-        AnyChannels::sort(SmallVec::from_vec(list)),
-    );
+    let layer =
+        Layer::new((width, height), LayerAttributes::default(), encoding, AnyChannels::sort(SmallVec::from_vec(list)));
     Image::from_layer(layer).write().to_file(path).map_err(|e| malformed(path, format!("writing EXR: {e}")))
 }
 
@@ -157,8 +163,9 @@ fn write_tables(path: &Path, t: &TableSet) -> Result<(), MaterialError> {
 }
 
 /// Pixels per side of a point's tile in `ndf_atlas.exr`, per ring of its
-/// table: two across each ring's width.
-const ATLAS_PX_PER_RING: usize = 2;
+/// table: one across each ring's width (at two, balanced satin's atlas
+/// took 63 MB and most of the material's writing time).
+const ATLAS_PX_PER_RING: usize = 1;
 
 /// `ndf_atlas.exr`: every point's table as a top view of its hemisphere,
 /// one square tile per point laid out as the grid (row 0 the `+y` edge, as
@@ -201,7 +208,10 @@ fn write_atlas(path: &Path, t: &TableSet, grid: setup::PointGrid) -> Result<(), 
             observed[at] = f16::from_f32(if table.coverage().get(*cell) { 1.0 } else { 0.0 });
         }
     }
-    write_channels(path, w, h, vec![("D".into(), FlatSamples::F16(d)), ("observed".into(), FlatSamples::F16(observed))])
+    // Run-length coding: the disks' surrounds are long runs of zeros, and
+    // zip would cost the material seconds of the time it is ready in.
+    let channels = vec![("D".into(), FlatSamples::F16(d)), ("observed".into(), FlatSamples::F16(observed))];
+    write_encoded(path, w, h, channels, Encoding::FAST_LOSSLESS)
 }
 
 fn read_tables(path: &Path, grid: NdfGrid, n: usize) -> Result<TableSet, MaterialError> {
@@ -384,41 +394,45 @@ fn write_into(dir: &Path, m: &Material) -> Result<(), MaterialError> {
     if let Some(c) = &m.choice {
         maps.push(("choice".into(), FlatSamples::U32(c.choice.iter().map(|&x| x as u32).collect())));
     }
-    write_channels(&dir.join("maps.exr"), w, h, maps)?;
-    let ndf = match &m.ndf {
-        Some(t) => {
-            write_tables(&dir.join("ndf.exr"), t)?;
-            write_atlas(&dir.join("ndf_atlas.exr"), t, m.grid)?;
-            Some(NdfEntry { file: "ndf.exr".into(), grid: t.grid(), kind: m.ndf_kind })
+    // The tables (the largest files, zip-compressed) and the atlas are
+    // written on threads of their own while this one writes the maps and
+    // the models.
+    let (ndf, partial_ndf, models) = std::thread::scope(|scope| -> Result<_, MaterialError> {
+        let ndf_job = m.ndf.as_ref().map(|t| scope.spawn(move || write_tables(&dir.join("ndf.exr"), t)));
+        let atlas_job = m.ndf.as_ref().map(|t| scope.spawn(move || write_atlas(&dir.join("ndf_atlas.exr"), t, m.grid)));
+        let partial_job =
+            m.partial.as_ref().map(|pf| scope.spawn(move || write_tables(&dir.join("ndf_partial.exr"), &pf.tables)));
+        write_channels(&dir.join("maps.exr"), w, h, maps)?;
+        let mut models = Vec::new();
+        for (name, mm) in &m.models {
+            let names = mm.model.param_names();
+            let np = names.len();
+            if mm.params.len() != np * m.n_points() {
+                return Err(malformed(
+                    dir,
+                    format!("model {name} has {} values, expected {}", mm.params.len(), np * m.n_points()),
+                ));
+            }
+            let chans = names
+                .iter()
+                .enumerate()
+                .map(|(k, n)| (n.clone(), FlatSamples::F32(mm.params.iter().skip(k).step_by(np).copied().collect())))
+                .collect();
+            let file = format!("model_{name}.exr");
+            write_channels(&dir.join(&file), w, h, chans)?;
+            models.push(ModelEntry { name: name.clone(), file, params: names, fit_seconds: mm.fit_seconds });
         }
-        None => None,
-    };
-    let partial_ndf = match &m.partial {
-        Some(PartialFit { tables: t, .. }) => {
-            write_tables(&dir.join("ndf_partial.exr"), t)?;
-            Some(NdfEntry { file: "ndf_partial.exr".into(), grid: t.grid(), kind: NdfKind::Partial })
+        for job in [ndf_job, atlas_job, partial_job].into_iter().flatten() {
+            job.join().map_err(|_| malformed(dir, "a thread writing its tables failed"))??;
         }
-        None => None,
-    };
-    let mut models = Vec::new();
-    for (name, mm) in &m.models {
-        let names = mm.model.param_names();
-        let np = names.len();
-        if mm.params.len() != np * m.n_points() {
-            return Err(malformed(
-                dir,
-                format!("model {name} has {} values, expected {}", mm.params.len(), np * m.n_points()),
-            ));
-        }
-        let chans = names
-            .iter()
-            .enumerate()
-            .map(|(k, n)| (n.clone(), FlatSamples::F32(mm.params.iter().skip(k).step_by(np).copied().collect())))
-            .collect();
-        let file = format!("model_{name}.exr");
-        write_channels(&dir.join(&file), w, h, chans)?;
-        models.push(ModelEntry { name: name.clone(), file, params: names, fit_seconds: mm.fit_seconds });
-    }
+        let ndf = m.ndf.as_ref().map(|t| NdfEntry { file: "ndf.exr".into(), grid: t.grid(), kind: m.ndf_kind });
+        let partial_ndf = m.partial.as_ref().map(|pf| NdfEntry {
+            file: "ndf_partial.exr".into(),
+            grid: pf.tables.grid(),
+            kind: NdfKind::Partial,
+        });
+        Ok((ndf, partial_ndf, models))
+    })?;
     let choice = m.choice.as_ref().map(|c| ChoiceEntry {
         legend: vec!["diffuse".into(), "isotropic".into(), "anisotropic".into(), "tabulated".into()],
         isotropic_model: c.isotropic_model.name().into(),

@@ -171,7 +171,7 @@ fn the_ndf_atlas_draws_each_points_table_where_the_format_says() {
         .unwrap();
     let (w, h) = (img.layer_data.size.0, img.layer_data.size.1);
     let tables = m.ndf.as_ref().unwrap();
-    let side = 4 * tables.grid().n_theta as usize;
+    let side = 2 * tables.grid().n_theta as usize;
     assert_eq!((w, h), (4 * side, 3 * side));
     let channel = |name: &str| -> Vec<f32> {
         let c = img.layer_data.channel_data.list.iter().find(|c| c.name.to_string() == name).unwrap();
