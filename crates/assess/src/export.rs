@@ -53,10 +53,7 @@ pub fn export_samples(dir: &Path, out: &Path, stride: u32, progress: &mut dyn Pr
     progress.stage("export", format!("replaying {} frames through the fitter's ingest", entries.len()));
     let mut ingest = Ingest::new(&ctx);
     crate::replay::for_each_frame(dir, &entries, &mut |msg| {
-        match msg {
-            crate::replay::FrameMsg::Dark { exposure, frame } => ingest.push_dark(exposure, &frame),
-            crate::replay::FrameMsg::Shot { shot, frame } => ingest.push_shot(&shot, &frame),
-        }
+        msg.feed(&mut ingest);
         Ok(())
     })?;
     let (samples, _) = ingest.finish();
@@ -78,18 +75,22 @@ pub fn export_samples(dir: &Path, out: &Path, stride: u32, progress: &mut dyn Pr
         zip.array("view", &[n, 3], points.iter().flat_map(|&p| ctx.view[p].to_array()))?;
         zip.array("light_position_mm", &[l, 3], ctx.lights.iter().flat_map(|q| q.pos.to_array()))?;
         zip.array("luma", &[3], fit::partial::LUMA)?;
+        // The fitter's own direction where it has one (`FitContext::sample`);
+        // below its grazing limit, the plain direction to the LED.
         zip.array(
             "light",
             &[n, l, 3],
             points.iter().flat_map(|&p| {
                 let x = ctx.positions[p];
-                ctx.lights.iter().flat_map(move |q| (q.pos - x).normalize_or(Vec3::Z).to_array())
+                ctx.lights.iter().enumerate().flat_map(move |(q, light)| {
+                    ctx.sample(p, q).map_or_else(|| (light.pos - x).normalize_or(Vec3::Z), |g| g.i).to_array()
+                })
             }),
         )?;
         zip.array("rho", &[n, l, 3], points.iter().flat_map(|&p| (0..lights).flat_map(move |q| samples.get(q, p).0)))?;
         zip.array("flags", &[n, l], points.iter().flat_map(|&p| (0..lights).map(move |q| samples.get(q, p).1)))?;
         let mut usable = 0u64;
-        let weights: Vec<f32> = points
+        let weights = points
             .iter()
             .flat_map(|&p| {
                 (0..lights).map(move |q| {
@@ -101,8 +102,7 @@ pub fn export_samples(dir: &Path, out: &Path, stride: u32, progress: &mut dyn Pr
                     }
                 })
             })
-            .inspect(|w| usable += u64::from(*w > 0.0))
-            .collect();
+            .inspect(|w| usable += u64::from(*w > 0.0));
         zip.array("weight", &[n, l], weights)?;
         Ok(usable)
     })();

@@ -17,11 +17,11 @@ pub enum FrameMsg {
 }
 
 impl FrameMsg {
-    /// Hand this frame to a fit pipeline.
-    pub fn feed(self, pipeline: &mut fit::Pipeline<'_>) {
+    /// Hand this frame to a fit pipeline or an ingest.
+    pub fn feed(self, sink: &mut dyn fit::FrameSink) {
         match self {
-            FrameMsg::Dark { exposure, frame } => pipeline.push_dark(exposure, &frame),
-            FrameMsg::Shot { shot, frame } => pipeline.push_shot(&shot, &frame),
+            FrameMsg::Dark { exposure, frame } => sink.push_dark(exposure, &frame),
+            FrameMsg::Shot { shot, frame } => sink.push_shot(&shot, &frame),
         }
     }
 }

@@ -78,21 +78,20 @@ pub async fn finish_fit(
         tokio::pin!(fit);
         // The stages' progress, as often as a person watching wants it.
         let mut tick = tokio::time::interval(FIT_PROGRESS_EVERY);
+        let report_fit = |rep: &mut Reporter| {
+            if let Some(s) = progress.snapshot() {
+                rep.emit(Event::Fit(s));
+            }
+        };
         let out = loop {
             tokio::select! {
                 r = &mut fit => {
                     // Where it ended (every stage's count complete).
-                    if let Some(s) = progress.snapshot() {
-                        rep.emit(Event::Fit(s));
-                    }
+                    report_fit(rep);
                     break r?;
                 }
                 _ = watch_stop.wait_for(|s| *s) => return Err(Interrupted.into()),
-                _ = tick.tick() => {
-                    if let Some(s) = progress.snapshot() {
-                        rep.emit(Event::Fit(s));
-                    }
-                }
+                _ = tick.tick() => report_fit(rep),
             }
         };
         rep.end_fit();

@@ -93,6 +93,24 @@ fn dark_level(dark: &[DarkLevel], exposure: u8, px: glam::Vec2, black: [f32; 3])
     dark.get(exposure as usize).and_then(|d| d.at(px)).unwrap_or(black)
 }
 
+/// Where a capture's frames go: the ingest itself, or a pipeline that
+/// times it (`crate::Pipeline`). Replaying a stored capture feeds either.
+pub trait FrameSink {
+    /// A dark frame of exposure index `exposure`.
+    fn push_dark(&mut self, exposure: u8, frame: &Frame);
+    /// A planned shot's frame.
+    fn push_shot(&mut self, shot: &PlannedShot, frame: &Frame);
+}
+
+impl FrameSink for Ingest<'_> {
+    fn push_dark(&mut self, exposure: u8, frame: &Frame) {
+        Ingest::push_dark(self, exposure, frame);
+    }
+    fn push_shot(&mut self, shot: &PlannedShot, frame: &Frame) {
+        Ingest::push_shot(self, shot, frame);
+    }
+}
+
 #[derive(Debug)]
 pub struct Ingest<'a> {
     ctx: &'a FitContext,

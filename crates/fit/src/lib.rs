@@ -51,7 +51,7 @@ pub mod synth;
 pub mod tol;
 
 pub use context::{FitContext, FitInputs};
-pub use ingest::Ingest;
+pub use ingest::{FrameSink, Ingest};
 pub use partial::{DEFAULT_ETA, PointFit, PointSamples, Sample, point_flag};
 pub use pipeline::{FitError, FitResult, PartialMaps, Pipeline, Stages, Timings};
 pub use points::{PointMaps, fit_points};

@@ -190,6 +190,15 @@ impl<'a> Pipeline<'a> {
     }
 }
 
+impl crate::ingest::FrameSink for Pipeline<'_> {
+    fn push_dark(&mut self, exposure: u8, frame: &Frame) {
+        Pipeline::push_dark(self, exposure, frame);
+    }
+    fn push_shot(&mut self, shot: &PlannedShot, frame: &Frame) {
+        Pipeline::push_shot(self, shot, frame);
+    }
+}
+
 /// Run the stages on samples made elsewhere (benchmarks, tests).
 pub fn run_stages(
     ctx: &FitContext,

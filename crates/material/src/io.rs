@@ -114,7 +114,9 @@ fn write_encoded(
     Image::from_layer(layer).write().to_file(path).map_err(|e| malformed(path, format!("writing EXR: {e}")))
 }
 
-fn read_channels(path: &Path) -> Result<(usize, usize, BTreeMap<String, Vec<f32>>), MaterialError> {
+/// Every channel of an EXR's first layer as `f32`, with its width and
+/// height: how this crate reads its files, and how a test reads one back.
+pub fn read_channels(path: &Path) -> Result<(usize, usize, BTreeMap<String, Vec<f32>>), MaterialError> {
     let img = exr::prelude::read()
         .no_deep_data()
         .largest_resolution_level()

@@ -13,6 +13,6 @@ pub mod rgl;
 pub mod view;
 
 pub use data::{Choice, ChoiceMap, Material, ModelMap, NdfKind, PartialFit, UNMEASURED};
-pub use io::{MaterialError, WriteMode, read, write};
+pub use io::{MaterialError, WriteMode, read, read_channels, write};
 pub use point::{PointMaterial, SvBrdf};
 pub use view::{MaterialView, ModelChoice};

@@ -156,28 +156,15 @@ fn writing_never_removes_what_it_did_not_write() {
 /// angle theta drawn at `sqrt(theta / (pi/2))` of the half width.
 #[test]
 fn the_ndf_atlas_draws_each_points_table_where_the_format_says() {
-    use exr::prelude::{ReadChannels, ReadLayers};
     let d = tempfile::tempdir().unwrap();
     let dir = d.path().join("material");
     let m = sample_material();
     material::write(&dir, &m, WriteMode::New).unwrap();
-    let img = exr::prelude::read()
-        .no_deep_data()
-        .largest_resolution_level()
-        .all_channels()
-        .first_valid_layer()
-        .all_attributes()
-        .from_file(dir.join("ndf_atlas.exr"))
-        .unwrap();
-    let (w, h) = (img.layer_data.size.0, img.layer_data.size.1);
+    let (w, h, channels) = material::read_channels(&dir.join("ndf_atlas.exr")).unwrap();
     let tables = m.ndf.as_ref().unwrap();
     let side = 2 * tables.grid().n_theta as usize;
     assert_eq!((w, h), (4 * side, 3 * side));
-    let channel = |name: &str| -> Vec<f32> {
-        let c = img.layer_data.channel_data.list.iter().find(|c| c.name.to_string() == name).unwrap();
-        c.sample_data.values_as_f32().collect()
-    };
-    let (dv, obs) = (channel("D"), channel("observed"));
+    let (dv, obs) = (&channels["D"], &channels["observed"]);
     for k in 0..m.grid.len() {
         let t = tables.get(k);
         let (c, r) = (k % 4, k / 4);
