@@ -51,6 +51,7 @@ fn white_scan_recovers_led_spread_profile_and_flat_field() {
         grid: PointGrid { cols: 16, rows: 16 },
         e_per_dn: sensor.e_per_dn(),
         bit_depth: 12,
+        sensor_layout: None,
     };
     let ctx = FitContext::new(inputs);
     let mut acc = fit::calibrate::WhiteAccumulator::new(&ctx, sim::materials::WHITE_ALBEDO);
@@ -115,6 +116,7 @@ fn led_drift_is_measured_from_the_reference_patches_and_removed() {
         grid,
         e_per_dn: sensor.e_per_dn(),
         bit_depth: 12,
+        sensor_layout: None,
     };
 
     // The white scan on a bar that the scans before it warmed (200 s of

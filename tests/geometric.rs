@@ -302,6 +302,7 @@ fn the_white_scan_finds_the_scale_a_mirror_cannot_see() {
             grid: fit::calibrate::WHITE_GRID,
             e_per_dn: sensor.e_per_dn(),
             bit_depth: 12,
+            sensor_layout: None,
         });
         let mut cam = sim_camera(truth.clone(), seed, sim::materials::builtin("white").unwrap());
         cam.set_exposure_direct(20_000, 1.0);

@@ -525,6 +525,7 @@ impl Camera for SimCamera {
             width: cam.width,
             height: cam.height,
             bit_depth: self.cfg.sensor.bit_depth,
+            layout: Some(Layout::Bayer { pattern: self.cfg.sensor.pattern }),
             exposure_us: s.exposure_us,
             gain: s.gain,
             controls,

@@ -71,6 +71,7 @@ pub fn run(s: &Scenario, settings: FitSettings) -> Fitted {
         grid: PointGrid { cols: s.grid, rows: s.grid },
         e_per_dn: sensor.e_per_dn(),
         bit_depth: sensor.bit_depth,
+        sensor_layout: Some(frame::Layout::Bayer { pattern: sensor.pattern }),
     };
     let ctx = FitContext::new(inputs);
     let stages = Stages { keep_samples: true, ..Stages::default() };

@@ -91,6 +91,7 @@ pub fn synthetic(material: Arc<dyn SvBrdf>, side: u32, steps: u32, led_stride: u
         grid: PointGrid { cols: side, rows: side },
         e_per_dn: E_PER_DN,
         bit_depth: 12,
+        sensor_layout: None,
     };
     let ctx = FitContext::new(inputs);
     let (n, nl) = (ctx.n_points(), ctx.n_lights());

@@ -73,6 +73,13 @@ fn variants() -> Vec<Variant> {
         },
         Variant { name: "no noise, pooled", noise: false, denser: false, pooled: true, settings: keep },
         Variant {
+            name: "no noise, pooled, NDF table twice as fine",
+            noise: false,
+            denser: false,
+            pooled: true,
+            settings: |s| s.grid = NdfGrid { n_theta: 2 * s.grid.n_theta, n_phi: 2 * s.grid.n_phi },
+        },
+        Variant {
             name: "as captured, per point (no pooling)",
             noise: true,
             denser: false,
@@ -85,6 +92,27 @@ fn variants() -> Vec<Variant> {
             denser: false,
             pooled: false,
             settings: keep,
+        },
+        Variant {
+            name: "no noise, per point, no bias correction",
+            noise: false,
+            denser: false,
+            pooled: false,
+            settings: |s| s.bias_passes = 0,
+        },
+        Variant {
+            name: "no noise, per point, two bias corrections",
+            noise: false,
+            denser: false,
+            pooled: false,
+            settings: |s| s.bias_passes = 2,
+        },
+        Variant {
+            name: "as captured, per point, no bias correction",
+            noise: true,
+            denser: false,
+            pooled: false,
+            settings: |s| s.bias_passes = 0,
         },
         Variant {
             name: "no noise, NDF table twice as fine",

@@ -93,11 +93,12 @@ pub fn export_samples(dir: &Path, out: &Path, stride: u32, progress: &mut dyn Pr
         let weights = points
             .iter()
             .flat_map(|&p| {
+                let footprint = noise.footprint(ctx, p);
                 (0..lights).map(move |q| {
                     let (rho, fl) = samples.get(q, p);
                     let in_view = ctx.pixels[p].is_some();
-                    match noise.usable(ctx, p, q, rho, fl).filter(|_| in_view) {
-                        Some((_, var)) => 1.0 / var,
+                    match noise.usable(ctx, p, q, rho, fl, &footprint).filter(|_| in_view) {
+                        Some((_, var)) => 1.0 / var.lum,
                         None => 0.0,
                     }
                 })

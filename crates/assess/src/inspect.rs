@@ -146,25 +146,25 @@ fn print_choice(e: &fit::select::SelectionSummary) {
         ScoredOn::FitSamples => "the fit's own samples (too few steps to hold any out; favours the table)",
     };
     println!(
-        "  why: per region, RMS residual / noise RMS on {on}; the simplest class within `resolution` (of ratio^2) of the best is chosen"
+        "  why: per region, RMS residual / noise RMS on {on}; the simplest class whose ratio^2 is within its margin of the best's is chosen (margins: 2 deviations of the difference, the noise's or the points' spread, whichever is larger)"
     );
     let (iso, aniso) = (e.isotropic_model.as_str(), e.anisotropic_model.as_str());
     println!(
-        "  {:>6} {:>7} {:>8} {:>11} {:>11} {:>10} {:>10}  chosen",
-        "region", "points", "samples", iso, aniso, "tabulated", "resolution"
+        "  {:>6} {:>7} {:>8} {:>11} {:>11} {:>10} {:>20}  chosen",
+        "region", "points", "samples", iso, aniso, "tabulated", "margins"
     );
     let names = ["diffuse", iso, aniso, "tabulated"];
     let f = |x: Option<f32>| x.map_or("-".to_string(), |v| format!("{v:.3}"));
     for (k, r) in e.regions.iter().enumerate() {
         println!(
-            "  {:>6} {:>7} {:>8} {:>11} {:>11} {:>10} {:>10.4}  {}",
+            "  {:>6} {:>7} {:>8} {:>11} {:>11} {:>10} {:>20}  {}",
             k,
             r.points,
             r.samples,
             f(r.ratio[0]),
             f(r.ratio[1]),
             f(r.ratio[2]),
-            r.resolution,
+            r.margin.map(f).join("/"),
             names.get(r.chosen as usize).unwrap_or(&"?")
         );
     }

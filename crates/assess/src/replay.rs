@@ -54,6 +54,7 @@ pub fn fit_inputs(info: &store::CaptureInfo) -> fit::FitInputs {
         grid: info.grid,
         e_per_dn: info.sensor.e_per_dn,
         bit_depth: info.sensor.bit_depth,
+        sensor_layout: info.sensor.layout,
     }
 }
 

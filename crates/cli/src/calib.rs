@@ -75,6 +75,7 @@ pub async fn white<K: Connector, C: Camera>(
         grid: fit::calibrate::WHITE_GRID,
         e_per_dn,
         bit_depth: 12,
+        sensor_layout: None,
     };
     let ctx = FitContext::new(inputs);
     let mut acc = fit::calibrate::WhiteAccumulator::new(&ctx, albedo);

@@ -483,7 +483,7 @@ pub async fn run(req: CaptureRequest, rep: &mut Reporter, cancel: watch::Receive
             plan,
             calibration: Calibration::nominal(40, 1.0, 0.0),
             calibration_source: None,
-            sensor: SensorInfo { bit_depth: 12, e_per_dn: 1.0 },
+            sensor: SensorInfo { bit_depth: 12, e_per_dn: 1.0, layout: None },
             camera: None,
             grid: PointGrid { cols: q.grid, rows: q.grid },
             settings: serde_json::to_value(&q)?,
@@ -557,7 +557,7 @@ pub async fn run(req: CaptureRequest, rep: &mut Reporter, cancel: watch::Receive
             return Err(e);
         }
     };
-    info.sensor = SensorInfo { bit_depth: applied.bit_depth, e_per_dn: s.e_per_dn };
+    info.sensor = SensorInfo { bit_depth: applied.bit_depth, e_per_dn: s.e_per_dn, layout: applied.layout };
     let mut cd = match root {
         Some(cd) => cd,
         None => {
@@ -577,6 +577,7 @@ pub async fn run(req: CaptureRequest, rep: &mut Reporter, cancel: watch::Receive
         grid: info.grid,
         e_per_dn: s.e_per_dn,
         bit_depth: info.sensor.bit_depth,
+        sensor_layout: info.sensor.layout,
     };
     let job = (!req.no_fit).then(|| FitJob::start(fit_inputs, q.fit.clone(), q.stages(&req.overrides)));
     if let Some(job) = &job {

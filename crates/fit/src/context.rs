@@ -18,6 +18,10 @@ pub struct FitInputs {
     /// Sensor electrons per DN at unit gain (shot-noise model).
     pub e_per_dn: f32,
     pub bit_depth: u8,
+    /// The sensor's sample layout, for the noise model
+    /// ([`crate::points::SampleNoise`]); `None` models each sample's noise
+    /// as one pixel's (an overstatement for a Bayer sensor).
+    pub sensor_layout: Option<frame::Layout>,
 }
 
 /// One light: a (step, LED) pair.

@@ -50,6 +50,7 @@ fn gather_where(
 ) -> PointSamples {
     let inputs = &ctx.inputs;
     let noise = SampleNoise::new(ctx);
+    let footprint = noise.footprint(ctx, p);
     let in_view = ctx.pixels[p].is_some() && settings.fits_point(&inputs.grid, p);
     let mut ps = PointSamples { o: ctx.view[p], in_view, ..PointSamples::default() };
     if !in_view {
@@ -67,37 +68,85 @@ fn gather_where(
                 ps.saturated += 1;
             }
         }
-        let Some((g, var)) = noise.usable(ctx, p, q, rho, fl) else { continue };
+        let Some((g, var)) = noise.usable(ctx, p, q, rho, fl, &footprint) else { continue };
         let kernel_rad = settings.kernel_scale * ctx.half_vector_spacing(p, q);
-        ps.samples.push(Sample { i: g.i, rho, var, kernel_rad });
+        ps.samples.push(Sample { i: g.i, rho, var: var.lum, channel_var: var.channel, kernel_rad });
     }
     ps
 }
 
-/// The noise of a capture's samples: shot and read noise carried through
-/// the exposure, gain and calibration into reflectance.
+/// How a point's luminance and each of its channels take up each colour's
+/// pixel noise ([`frame::Layout::sample_footprint`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Footprint {
+    pub lum: [f32; 3],
+    pub channel: [[f32; 3]; 3],
+}
+
+/// The variance of one sample's luminance and of each channel.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SampleVariance {
+    pub lum: f32,
+    pub channel: [f32; 3],
+}
+
+/// The noise of a capture's samples: shot and read noise of the sensor's
+/// pixels carried through the demosaic, the bilinear sample, the
+/// luminance weights, the exposure, gain and calibration into the
+/// luminance reflectance.
 #[derive(Clone, Debug)]
 pub struct SampleNoise {
     exposures_us: Vec<u32>,
     gain: f32,
-    read_dn: f32,
+    read_dn: [f32; 3],
     e_per_dn: f32,
+    layout: Option<frame::Layout>,
+    size: (u32, u32),
+    /// Read-noise variance of the dark level relative to one frame's: the
+    /// mean of the plan's dark frames, or nothing where the calibration's
+    /// black level stands in for them.
+    dark_share: f32,
 }
 
 impl SampleNoise {
     pub fn new(ctx: &FitContext) -> Self {
         let inputs = &ctx.inputs;
+        let camera = &inputs.geometry.camera;
         Self {
             exposures_us: inputs.plan.exposures_us.clone(),
             gain: inputs.plan.gain.max(crate::tol::MIN_DIVISOR),
-            read_dn: inputs.calibration.read_noise_dn.iter().sum::<f32>() / 3.0,
+            read_dn: inputs.calibration.read_noise_dn,
             e_per_dn: inputs.e_per_dn.max(crate::tol::MIN_DIVISOR),
+            layout: inputs.sensor_layout,
+            size: (camera.width, camera.height),
+            dark_share: if inputs.plan.dark_frames > 0 { 1.0 / inputs.plan.dark_frames as f32 } else { 0.0 },
+        }
+    }
+
+    /// How point `p`'s luminance and channels take up each colour's pixel
+    /// noise ([`frame::Layout::sample_footprint`] at its pixel). A capture
+    /// that does not record its sensor's layout gets the weights
+    /// themselves: each value as noisy as one pixel, which for a Bayer
+    /// sensor overstates the luminance's variance about fourfold
+    /// (`tests/noise_model.rs`).
+    pub fn footprint(&self, ctx: &FitContext, p: usize) -> Footprint {
+        let at = |weights: [f32; 3]| {
+            match (self.layout, ctx.pixels.get(p).copied().flatten()) {
+                (Some(layout), Some(px)) => layout.sample_footprint(self.size.0, self.size.1, px.x, px.y, weights),
+                _ => None,
+            }
+            .unwrap_or(weights)
+        };
+        Footprint {
+            lum: at(crate::partial::LUMA),
+            channel: [at([1.0, 0.0, 0.0]), at([0.0, 1.0, 0.0]), at([0.0, 0.0, 1.0])],
         }
     }
 
     /// Whether the sample of light `q` at point `p` (reflectance `rho`,
     /// flag byte `fl`) is one the fitter uses, and if so its geometry and
-    /// the variance of its luminance reflectance.
+    /// the variances of its luminance and channel reflectances, for the
+    /// point's noise `footprint` ([`SampleNoise::footprint`]).
     pub fn usable(
         &self,
         ctx: &FitContext,
@@ -105,18 +154,28 @@ impl SampleNoise {
         q: usize,
         rho: [f32; 3],
         fl: u8,
-    ) -> Option<(crate::context::SampleGeometry, f32)> {
+        footprint: &Footprint,
+    ) -> Option<(crate::context::SampleGeometry, SampleVariance)> {
         if fl & flag::UNUSABLE != 0 || rho.iter().any(|v| !v.is_finite()) {
             return None;
         }
         let g = ctx.sample(p, q)?;
         let e = SampleStore::exposure_of(fl) as usize;
         let t = self.exposures_us.get(e).or(self.exposures_us.first()).copied().unwrap_or(1) as f32 * 1e-6;
-        // rho = (DN - dark) * k; Var(DN) = read^2 + (DN - dark) gain / e_per_dn.
+        // rho = (DN - dark) k; a pixel of colour c has Var(DN) = read_c^2
+        // + (DN - dark) gain / e_per_dn, with DN - dark about rho_c / k,
+        // and the dark level, a mean of dark frames, read_c^2 / frames.
         let k = g.to_rho / (t * self.gain);
-        let l = crate::partial::LUMA.iter().zip(&rho).map(|(w, r)| w * r).sum::<f32>().max(0.0);
-        let var = k * k * self.read_dn * self.read_dn + k * l * self.gain / self.e_per_dn;
-        Some((g, var.max(crate::tol::MIN_VARIANCE)))
+        let var = |f: &[f32; 3]| {
+            let (mut read, mut shot) = (0.0f32, 0.0f32);
+            for c in 0..3 {
+                read += f[c] * self.read_dn[c] * self.read_dn[c];
+                shot += f[c] * rho[c].max(0.0);
+            }
+            let v = k * k * read * (1.0 + self.dark_share) + k * shot * self.gain / self.e_per_dn;
+            v.max(crate::tol::MIN_VARIANCE)
+        };
+        Some((g, SampleVariance { lum: var(&footprint.lum), channel: footprint.channel.each_ref().map(var) }))
     }
 }
 

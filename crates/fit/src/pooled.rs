@@ -47,7 +47,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::context::FitContext;
-use crate::partial::{PointSamples, Splatted, close, join, kernel_cells, lum, point_flag};
+use crate::partial::{PointSamples, SplatLayout, Splatted, close, join, kernel_cells, lum, point_flag};
 use crate::points::{PointMaps, gather};
 use crate::pushpull::push_pull;
 use crate::samples::SampleStore;
@@ -178,9 +178,11 @@ fn pool_cluster(
     // Kernel cells of every sample, once.
     let mut kcells: Vec<(u32, f32)> = Vec::new();
     let mut offsets: Vec<usize> = vec![0];
+    let mut corners: Vec<[(u32, f32); 4]> = Vec::new();
     let mut sum_k = vec![0.0f32; cells];
     for mb in &members {
         for (x, &h) in mb.ps.samples.iter().zip(&mb.h) {
+            corners.push(crate::partial::corners(grid, h));
             let r = (x.kernel_rad * shrink).max(MIN_KERNEL_CELLS * cell_angle(grid, h)).max(crate::tol::MIN_KERNEL_RAD);
             let start = kcells.len();
             kernel_cells(grid, &centres, h, r, &mut kcells);
@@ -198,9 +200,21 @@ fn pool_cluster(
     let mut shared: Option<MaskingTable> = None;
     let mut k_s: Vec<f32> = members.iter().map(|mb| mb.k_s).collect();
     let mut table = NdfTable::zeros(grid);
+    let layout = SplatLayout {
+        grid,
+        cells: &kcells,
+        offsets: &offsets,
+        corners: &corners,
+        confidence: &confidence,
+        covered: &covered,
+    };
+    let mut d_all: Vec<f32> = Vec::with_capacity(corners.len());
+    let mut weight: Vec<f64> = Vec::with_capacity(corners.len());
     for _ in 0..ROUNDS {
         let mut sum_w = vec![0.0f64; cells];
         let mut sum_wd = vec![0.0f64; cells];
+        d_all.clear();
+        weight.clear();
         let mut s = 0;
         for (j, mb) in members.iter().enumerate() {
             let m = shared.as_ref().unwrap_or(&own_masking[j]);
@@ -209,11 +223,15 @@ fn pool_cluster(
                 let g = 4.0 * m.projected_area(x.i) * sigma_o / (mb.fresnel[k] * k_s[j]);
                 let d = mb.spec[k] * g;
                 let var_d = (x.var * g * g) as f64;
+                d_all.push(d);
                 if d.is_finite() && var_d > 0.0 && var_d.is_finite() {
+                    weight.push(1.0 / var_d);
                     for &(c, w) in &kcells[offsets[s]..offsets[s + 1]] {
                         sum_w[c as usize] += w as f64 / var_d;
                         sum_wd[c as usize] += w as f64 * d as f64 / var_d;
                     }
+                } else {
+                    weight.push(0.0);
                 }
                 s += 1;
             }
@@ -221,6 +239,7 @@ fn pool_cluster(
         let mut values: Vec<f32> =
             sum_w.iter().zip(&sum_wd).map(|(&w, &wd)| if w > 0.0 { (wd / w) as f32 } else { 0.0 }).collect();
         push_pull(grid.n_theta as usize, grid.n_phi as usize, &mut values, &confidence, &covered);
+        layout.twice(&mut values, &d_all, &weight, settings.bias_passes);
         let mut cov = Coverage::empty(cells);
         for (c, v) in values.iter_mut().enumerate() {
             if covered[c] && v.is_finite() {

@@ -35,11 +35,21 @@
 //!
 //! **Choice.** Per cluster, the class with the lowest score wins, unless a
 //! simpler class's score is within [`NOISE_SIGMAS`] standard deviations of
-//! the noise in that sum: with Gaussian noise of variance `s_j^2` per
-//! sample, a sum of squared residuals varies by `sqrt(2 sum s_j^4)` from
-//! the noise alone, and a difference chance can make does not buy a more
-//! complex model. This is the complexity penalty, derived from the noise
-//! model rather than from a count of parameters.
+//! it, the deviation being the larger of two:
+//! - the noise's: with Gaussian noise of variance `s_j^2` per sample, a sum
+//!   of squared residuals varies by `sqrt(2 sum s_j^4)` from the noise
+//!   alone, and a difference chance can make does not buy a more complex
+//!   model. This is the complexity penalty, derived from the noise model
+//!   rather than from a count of parameters; it is the whole deviation
+//!   where both classes fit to within the noise.
+//! - the points' (a paired test with the region's points as the units):
+//!   the per-point differences of the two scores, summed over the `n`
+//!   points with scored samples, vary by
+//!   `sqrt(n / (n - 1) sum (d_p - mean d)^2)`. Where neither class fits to
+//!   within the noise (a lobe sharper than the lights' spacing, whose peak
+//!   samples every class misses by many noise deviations) the noise says
+//!   nothing about which misses less in general, and a sum that a few
+//!   points' peaks decide is not evidence for the more complex class.
 
 use brdf::Brdf;
 use brdf::ndf::{MaskingOperator, TabulatedNdf};
@@ -156,8 +166,14 @@ pub struct RegionChoice {
     /// over the noise's RMS on the same samples (1 is a perfect model).
     pub ratio: [Option<f32>; 3],
     /// The noise's standard deviation of a score, relative to the noise's
-    /// sum: how far apart two ratios^2 must be to count.
+    /// sum.
     pub resolution: f32,
+    /// Per class, how far its ratio^2 may lie above the best class's and
+    /// still be chosen: [`NOISE_SIGMAS`] times the larger of the noise's
+    /// and the points' deviation of the difference, relative to the
+    /// noise's sum (absent from materials made before the points' test).
+    #[serde(default)]
+    pub margin: [Option<f32>; 3],
     pub chosen: u8,
 }
 
@@ -229,10 +245,20 @@ pub fn select(maps: &PointMaps, cluster: &[u32], clusters: usize, scores: &Score
         let class_sse =
             [sum(&|p| scores.model_sse[iso][p]), sum(&|p| scores.model_sse[aniso][p]), sum(&|p| scores.table_sse[p])];
         let best = class_sse.iter().copied().filter(|x| x.is_finite()).fold(f64::INFINITY, f64::min);
+        let best_k = class_sse.iter().position(|&x| x == best).unwrap_or(2);
+        let per_point = |k: usize, p: usize| match k {
+            0 => scores.model_sse[iso][p],
+            1 => scores.model_sse[aniso][p],
+            _ => scores.table_sse[p],
+        };
+        let margin: [f64; 3] = std::array::from_fn(|k| {
+            let scored = m.iter().filter(|&&p| scores.n[p] > 0);
+            NOISE_SIGMAS * sd.max(paired_sd(scored.map(|&p| per_point(k, p) - per_point(best_k, p))))
+        });
         // A region with no scored sample (none of its points in the
         // choice's refit) keeps the full model: the table.
         let k = if noise > 0.0 {
-            class_sse.iter().position(|&x| x.is_finite() && x <= best + NOISE_SIGMAS * sd).unwrap_or(2)
+            (0..3).position(|k| class_sse[k].is_finite() && class_sse[k] <= best + margin[k]).unwrap_or(2)
         } else {
             2
         };
@@ -246,6 +272,9 @@ pub fn select(maps: &PointMaps, cluster: &[u32], clusters: usize, scores: &Score
             samples: m.iter().map(|&p| scores.n[p] as u64).sum(),
             ratio: class_sse.map(ratio),
             resolution: if noise > 0.0 { (sd / noise) as f32 } else { 0.0 },
+            margin: std::array::from_fn(|k| {
+                (class_sse[k].is_finite() && noise > 0.0).then(|| (margin[k] / noise) as f32)
+            }),
             chosen: class,
         });
     }
@@ -279,6 +308,21 @@ pub fn select(maps: &PointMaps, cluster: &[u32], clusters: usize, scores: &Score
     }
     summary.regions = regions;
     Some(Selection { choice, isotropic: iso_m, anisotropic: aniso_m, summary })
+}
+
+/// The standard deviation of a sum of per-point differences, estimated
+/// from their spread: `sqrt(n / (n - 1) sum (d - mean d)^2)`, 0 for fewer
+/// than two points (ignoring points where the difference is not finite,
+/// which a finite class score never has).
+fn paired_sd(d: impl Iterator<Item = f64>) -> f64 {
+    let d: Vec<f64> = d.filter(|x| x.is_finite()).collect();
+    let n = d.len();
+    if n < 2 {
+        return 0.0;
+    }
+    let mean = d.iter().sum::<f64>() / n as f64;
+    let ss: f64 = d.iter().map(|x| (x - mean).powi(2)).sum();
+    (n as f64 / (n - 1) as f64 * ss).sqrt()
 }
 
 #[cfg(test)]
@@ -335,6 +379,26 @@ mod tests {
         assert_eq!(chosen(&scored(10, 1.05, 1.2, 1.0), 10), ISOTROPIC);
         // With 100 times the samples the same 0.05 is 16 deviations.
         assert_eq!(chosen(&scored(1000, 1.05, 1.2, 1.0), 1000), TABULATED);
+    }
+
+    #[test]
+    fn a_difference_that_a_few_points_decide_does_not_buy_the_table() {
+        // 20 points; the table misses by 4 noise variances per sample
+        // where the anisotropic lobe misses by 5, far beyond the noise's
+        // resolution (0.1 in ratio^2 with 4,000 samples).
+        let n = 20;
+        let mut s = scored(n, 9.0, 5.0, 4.0);
+        assert_eq!(chosen(&s, n), TABULATED, "consistently better at every point");
+        // The same totals, but decided by two points: at the others the
+        // table misses by more than the lobe.
+        for p in 0..n {
+            s.table_sse[p] = if p < 2 { 0.0 } else { (4.0 * 20.0 / 18.0) * 200.0 };
+            s.model_sse[1][p] = if p < 2 { 12.0 * 200.0 } else { (5.0 * 20.0 - 24.0) / 18.0 * 200.0 };
+        }
+        let total = |v: &[f64]| v.iter().sum::<f64>();
+        assert!((total(&s.table_sse) - 4.0 * 200.0 * 20.0).abs() < 1e-6);
+        assert!((total(&s.model_sse[1]) - 5.0 * 200.0 * 20.0).abs() < 1e-6);
+        assert_eq!(chosen(&s, n), ANISOTROPIC);
     }
 
     #[test]

@@ -31,6 +31,10 @@ pub struct FitSettings {
     /// resolution. Measured: 0.6 and 0.8 bias eta and `ks` on the Ward
     /// surface of `tests/fit_accuracy.rs`, 0.5 passes it.
     pub kernel_scale: f32,
+    /// Passes of the splat's bias correction (twicing,
+    /// `partial::SplatLayout::twice`); 0 is the plain kernel average.
+    #[serde(default = "default_bias_passes")]
+    pub bias_passes: u32,
     /// Leave out every k-th gantry step (all of its lights: `step % k ==
     /// 0`) for hold-out validation; `None` uses every light. Whole steps,
     /// not single LEDs, so that a held-out light is never interpolated
@@ -108,6 +112,10 @@ fn step_of(plan: &setup::CapturePlan, q: usize) -> u32 {
     (q / plan.leds.len().max(1)) as u32
 }
 
+fn default_bias_passes() -> u32 {
+    1
+}
+
 impl Default for FitSettings {
     fn default() -> Self {
         Self {
@@ -118,6 +126,7 @@ impl Default for FitSettings {
             min_samples: 24,
             observed_weight: 0.2,
             kernel_scale: 0.5,
+            bias_passes: default_bias_passes(),
             holdout_every: None,
             choice_holdout: None,
             point_stride: None,

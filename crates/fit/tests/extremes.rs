@@ -55,6 +55,7 @@ fn samples(b: &dyn Brdf, dirs: &[Vec3], seed: u64) -> PointSamples {
                 i,
                 rho: [f.x + n.sample(&mut rng), f.y + n.sample(&mut rng), f.z + n.sample(&mut rng)],
                 var: sd * sd,
+                channel_var: [sd * sd; 3],
                 kernel_rad: 0.03,
             }
         })
@@ -177,7 +178,7 @@ fn pure_noise_has_no_specular() {
         .iter()
         .map(|&i| {
             let v = 0.05 + rng.random_range(-1.0..1.0) * sd * 1.7;
-            Sample { i, rho: [v, v, v], var: sd * sd, kernel_rad: 0.03 }
+            Sample { i, rho: [v, v, v], var: sd * sd, channel_var: [sd * sd; 3], kernel_rad: 0.03 }
         })
         .collect::<Vec<_>>();
     let ps = PointSamples { o: camera(), lit: samples.len(), samples, saturated: 0, in_view: true };
@@ -193,6 +194,7 @@ fn non_finite_and_absurd_samples_never_reach_the_output() {
     ps.samples[11].rho = [f32::INFINITY, 0.0, -f32::INFINITY];
     ps.samples[12].rho = [1e30; 3];
     ps.samples[13].var = f32::NAN;
+    ps.samples[13].channel_var = [f32::NAN, 1.0, -1.0];
     ps.samples[14].i = Vec3::new(0.0, 0.0, -1.0);
     ps.samples[15].kernel_rad = 0.0;
     let f = fit(&ps);

@@ -55,6 +55,97 @@ impl Layout {
             _ => 1,
         }
     }
+
+    /// How the sensor's pixel noise reaches a weighted sum of channels read
+    /// at `(x, y)` of a `width` x `height` frame: `sum_c weights[c] * s_c`,
+    /// where `s` is [`RgbImage::sample`] of [`Frame::to_rgb`]. That sum is
+    /// linear in the raw samples, `sum_j b_j raw_j`; this returns, for each
+    /// colour of raw sample, `sum b_j^2` over the raw samples of that
+    /// colour, so that independent raw noise of variance `v_c` per colour
+    /// gives the sum the variance `sum_c out[c] v_c` (a mono sensor's
+    /// samples count as green). `None` where
+    /// `RgbImage::sample` has no value.
+    ///
+    /// For Bayer data this is well below one pixel's variance: the
+    /// bilinear sample averages four demosaiced pixels, and each of those
+    /// averages up to four sensor pixels of a missing colour.
+    pub fn sample_footprint(self, width: u32, height: u32, x: f32, y: f32, weights: [f32; 3]) -> Option<[f32; 3]> {
+        let (fx, fy) = (x - 0.5, y - 0.5);
+        if !(fx >= 0.0 && fy >= 0.0) {
+            return None;
+        }
+        let (x0, y0) = (fx as i64, fy as i64);
+        let (w, h) = (width as i64, height as i64);
+        if x0 + 1 >= w || y0 + 1 >= h {
+            return None;
+        }
+        let (tx, ty) = (fx - x0 as f32, fy - y0 as f32);
+        let taps = [
+            (x0, y0, (1.0 - tx) * (1.0 - ty)),
+            (x0 + 1, y0, tx * (1.0 - ty)),
+            (x0, y0 + 1, (1.0 - tx) * ty),
+            (x0 + 1, y0 + 1, tx * ty),
+        ];
+        let mut out = [0.0f32; 3];
+        match self {
+            Layout::Mono => {
+                // Every channel is the raw sample itself; a mono sensor's
+                // one colour is counted in the green slot (as
+                // `fit::calibrate::dark_statistics` does).
+                let sum: f32 = weights.iter().sum();
+                out[1] = taps.iter().map(|t| (t.2 * sum).powi(2)).sum();
+            }
+            Layout::Rgb => {
+                // Three raw samples per pixel, each reaching one channel.
+                let w2: f32 = taps.iter().map(|t| t.2 * t.2).sum();
+                for c in 0..3 {
+                    out[c] = weights[c] * weights[c] * w2;
+                }
+            }
+            Layout::Bayer { pattern } => {
+                // Raw pixels within one pixel of the taps: a 4 x 4 window.
+                let mut coef = [[0.0f32; 4]; 4];
+                for &(tx, ty, wt) in &taps {
+                    let own = pattern.channel(tx as u32, ty as u32);
+                    for (c, &wc) in weights.iter().enumerate() {
+                        if c == own {
+                            coef[(ty - y0 + 1) as usize][(tx - x0 + 1) as usize] += wt * wc;
+                            continue;
+                        }
+                        // The demosaic's mean of that colour's neighbours.
+                        let near = |dx: i64, dy: i64| {
+                            let (xx, yy) = (tx + dx, ty + dy);
+                            xx >= 0 && yy >= 0 && xx < w && yy < h && pattern.channel(xx as u32, yy as u32) == c
+                        };
+                        let n = (-1..=1)
+                            .flat_map(|dy| (-1..=1).map(move |dx| (dx, dy)))
+                            .filter(|&(dx, dy)| near(dx, dy))
+                            .count();
+                        if n == 0 {
+                            continue;
+                        }
+                        for dy in -1..=1 {
+                            for dx in -1..=1 {
+                                if near(dx, dy) {
+                                    coef[(ty + dy - y0 + 1) as usize][(tx + dx - x0 + 1) as usize] +=
+                                        wt * wc / n as f32;
+                                }
+                            }
+                        }
+                    }
+                }
+                for (r, row) in coef.iter().enumerate() {
+                    for (k, &b) in row.iter().enumerate() {
+                        let (xx, yy) = (x0 - 1 + k as i64, y0 - 1 + r as i64);
+                        if xx >= 0 && yy >= 0 && xx < w && yy < h {
+                            out[pattern.channel(xx as u32, yy as u32)] += b * b;
+                        }
+                    }
+                }
+            }
+        }
+        Some(out)
+    }
 }
 
 /// Frame flags.
@@ -249,6 +340,53 @@ mod tests {
         assert!((s[0] - 300.0).abs() < 1e-3 && !c);
     }
 
+    /// The footprint against the real demosaic and sampler: a frame that
+    /// is 1 at one raw pixel and 0 elsewhere reads `b_j` there, so the sum
+    /// of `b_j^2` over every raw pixel of a colour is what
+    /// `sample_footprint` must give for that colour.
+    #[test]
+    fn sample_footprint_is_the_demosaic_and_samplers_own() {
+        let (w, h) = (9u32, 8u32);
+        let weights = [0.2126f32, 0.7152, 0.0722];
+        let layouts = [
+            Layout::Bayer { pattern: BayerPattern::Rggb },
+            Layout::Bayer { pattern: BayerPattern::Gbrg },
+            Layout::Mono,
+            Layout::Rgb,
+        ];
+        for layout in layouts {
+            for &(x, y) in &[(3.5f32, 3.5f32), (4.2, 3.7), (1.1, 6.9), (7.9, 1.6), (0.6, 0.5)] {
+                let spp = layout.samples_per_pixel();
+                let mut want = [0.0f64; 3];
+                for j in 0..(w * h) as usize * spp {
+                    let mut data = vec![0u16; (w * h) as usize * spp];
+                    data[j] = 1;
+                    let f = Frame { width: w, height: h, layout, bit_depth: 12, data, meta: meta() };
+                    let (s, _) = f.to_rgb().sample(x, y).unwrap();
+                    let b: f32 = s.iter().zip(&weights).map(|(v, w)| v * w).sum();
+                    let (px, py) = (((j / spp) as u32) % w, ((j / spp) as u32) / w);
+                    let colour = match layout {
+                        Layout::Bayer { pattern } => pattern.channel(px, py),
+                        Layout::Rgb => j % 3,
+                        Layout::Mono => 1,
+                    };
+                    want[colour] += (b as f64).powi(2);
+                }
+                let got = layout.sample_footprint(w, h, x, y, weights).unwrap();
+                for c in 0..3 {
+                    let expect = want[c];
+                    assert!(
+                        (got[c] as f64 - expect).abs() <= 1e-6 * expect.max(1e-3),
+                        "{layout:?} at ({x}, {y}), colour {c}: {} against {expect}",
+                        got[c]
+                    );
+                }
+            }
+        }
+        assert_eq!(Layout::Mono.sample_footprint(w, h, 0.2, 3.0, weights), None);
+        assert_eq!(Layout::Mono.sample_footprint(w, h, 8.6, 3.0, weights), None);
+    }
+
     #[test]
     fn clipping_propagates_to_neighbours() {
         let mut data = vec![100u16; 16];
@@ -278,6 +416,10 @@ pub struct AppliedSettings {
     pub width: u32,
     pub height: u32,
     pub bit_depth: u8,
+    /// How the frames' samples are laid out (absent from captures made
+    /// before it was recorded).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub layout: Option<Layout>,
     pub exposure_us: u32,
     pub gain: f32,
     /// Every control set, with the value read back.

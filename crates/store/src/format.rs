@@ -30,6 +30,11 @@ pub struct SensorInfo {
     /// Electrons per DN at unit gain (from the datasheet or a photon
     /// transfer measurement).
     pub e_per_dn: f32,
+    /// The sensor's sample layout (Bayer, mono, RGB), which sets how pixel
+    /// noise reaches a sample; absent from captures made before it was
+    /// recorded, whose noise is modelled as one pixel's.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub layout: Option<frame::Layout>,
 }
 
 /// For simulated captures: what was simulated (the ground truth).

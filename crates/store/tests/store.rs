@@ -18,7 +18,7 @@ fn info() -> CaptureInfo {
         calibration: Calibration::nominal(40, 1.0, 64.0),
         calibration_source: None,
         geometry: g,
-        sensor: SensorInfo { bit_depth: 12, e_per_dn: 3.0 },
+        sensor: SensorInfo { bit_depth: 12, e_per_dn: 3.0, layout: None },
         camera: None,
         grid: PointGrid { cols: 8, rows: 8 },
         settings: serde_json::json!({}),

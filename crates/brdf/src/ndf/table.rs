@@ -33,6 +33,31 @@ pub enum TableError {
     BadValue { index: usize, value: f32 },
 }
 
+/// Where a direction falls between four cell centres (see
+/// [`NdfGrid::bilinear`]): rings `t`, sectors `p`, and the fractions toward
+/// the second of each.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Bilinear {
+    pub t: [usize; 2],
+    pub ft: f32,
+    pub p: [usize; 2],
+    pub fp: f32,
+}
+
+impl Bilinear {
+    /// The four cells (ring-major indices on an `n_phi`-sector grid) and
+    /// their weights, which sum to 1.
+    pub fn weights(&self, n_phi: usize) -> [(usize, f32); 4] {
+        let (ft, fp) = (self.ft, self.fp);
+        [
+            (self.t[0] * n_phi + self.p[0], (1.0 - ft) * (1.0 - fp)),
+            (self.t[0] * n_phi + self.p[1], (1.0 - ft) * fp),
+            (self.t[1] * n_phi + self.p[0], ft * (1.0 - fp)),
+            (self.t[1] * n_phi + self.p[1], ft * fp),
+        ]
+    }
+}
+
 /// Geometry of a hemisphere table: `n_theta` warped rings by `n_phi` sectors.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
 pub struct NdfGrid {
@@ -120,6 +145,20 @@ impl NdfGrid {
         let u = (theta / FRAC_PI_2).sqrt() * self.n_theta as f32;
         let p = frame::phi(h) / self.dphi();
         (u, p)
+    }
+
+    /// The four cell centres around a direction and its fractions between
+    /// them: [`NdfTable::eval`]'s interpolation, bilinear in
+    /// `(sqrt(2 theta / pi), phi)`, periodic in phi and clamped in theta.
+    pub fn bilinear(&self, h: Vec3) -> Bilinear {
+        let (u, p) = self.coords(h);
+        let (nt, np) = (self.n_theta as usize, self.n_phi as usize);
+        let tu = (u - 0.5).clamp(0.0, (nt - 1) as f32);
+        let t0 = (tu as usize).min(nt - 1);
+        let pp = p - 0.5;
+        let pf = pp.floor();
+        let p0 = (pf as i64).rem_euclid(np as i64) as usize;
+        Bilinear { t: [t0, (t0 + 1).min(nt - 1)], ft: tu - t0 as f32, p: [p0, (p0 + 1) % np], fp: pp - pf }
     }
 
     /// The cell holding a direction at or above the horizon.
@@ -338,20 +377,11 @@ impl NdfTable {
         if h.z < 0.0 {
             return 0.0;
         }
-        let (u, p) = self.grid.coords(h);
-        let (nt, np) = (self.grid.n_theta as usize, self.grid.n_phi as usize);
-        let tu = (u - 0.5).clamp(0.0, (nt - 1) as f32);
-        let t0 = (tu as usize).min(nt - 1);
-        let t1 = (t0 + 1).min(nt - 1);
-        let ft = tu - t0 as f32;
-        let pp = p - 0.5;
-        let pf = pp.floor();
-        let fp = pp - pf;
-        let p0 = (pf as i64).rem_euclid(np as i64) as usize;
-        let p1 = (p0 + 1) % np;
+        let Bilinear { t, ft, p, fp } = self.grid.bilinear(h);
+        let np = self.grid.n_phi as usize;
         let v = |t: usize, p: usize| self.values[t * np + p];
-        let a = v(t0, p0) * (1.0 - fp) + v(t0, p1) * fp;
-        let b = v(t1, p0) * (1.0 - fp) + v(t1, p1) * fp;
+        let a = v(t[0], p[0]) * (1.0 - fp) + v(t[0], p[1]) * fp;
+        let b = v(t[1], p[0]) * (1.0 - fp) + v(t[1], p[1]) * fp;
         a * (1.0 - ft) + b * ft
     }
 

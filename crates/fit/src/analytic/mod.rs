@@ -425,7 +425,13 @@ mod tests {
         let bd = vec![std::f32::consts::FRAC_1_PI; bs.len()];
         let s = bs
             .iter()
-            .map(|&b| Sample { i: Vec3::Z, rho: [kd / std::f32::consts::PI + ks * b; 3], var: 1e-4, kernel_rad: 0.1 })
+            .map(|&b| Sample {
+                i: Vec3::Z,
+                rho: [kd / std::f32::consts::PI + ks * b; 3],
+                var: 1e-4,
+                channel_var: [1e-4; 3],
+                kernel_rad: 0.1,
+            })
             .collect();
         (bd, bs, s)
     }

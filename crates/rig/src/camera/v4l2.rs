@@ -396,6 +396,7 @@ impl Worker {
             width: session.width,
             height: session.height,
             bit_depth: format.bit_depth(),
+            layout: Some(format.layout()),
             exposure_us: session.exposure_us,
             gain: session.gain,
             controls: recorded,
