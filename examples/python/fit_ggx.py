@@ -11,8 +11,8 @@ with an analytic NDF):
     sigma(v) = (vz + sqrt(vz^2 + vx^2 ax^2 + vy^2 ay^2)) / 2
 
 with the lobe frame turned by `angle_rad` about the normal. The fit
-minimises the weighted squared error of every channel (weights: the
-samples' inverse variance, from the export), starting from a generic lobe,
+minimises the weighted squared error of every channel (weights: each
+channel's inverse variance, the export's `channel_weight`), starting from a generic lobe,
 never from refl's answer. With MATERIAL_DIR, refl's own ggx_aniso fit of
 that point (model_ggx_aniso.exr) is scored on the same samples beside it.
 Prints one JSON object.
@@ -53,15 +53,16 @@ def ggx_aniso(p, i, o):
 
 
 def point_samples(npz, col, row):
-    """The usable samples of grid point (col, row): i, o, rho, weight."""
+    """The usable samples of grid point (col, row): i, o, rho and each
+    channel's weight."""
     d = np.load(npz)
     cols = int(d["grid"][0])
     where = np.nonzero(d["point"] == row * cols + col)[0]
     if where.size == 0:
         sys.exit(f"point {col},{row} was not exported (see --stride)")
     k = where[0]
-    w = d["weight"][k]
-    use = w > 0
+    use = d["weight"][k] > 0
+    w = d["channel_weight"][k]
     i = d["light"][k][use].astype(np.float64)
     o = np.broadcast_to(d["view"][k].astype(np.float64), i.shape)
     return i, o, d["rho"][k][use].astype(np.float64), w[use].astype(np.float64)
@@ -69,7 +70,7 @@ def point_samples(npz, col, row):
 
 def chi2(p, i, o, rho, w):
     """Weighted squared error summed over samples and channels."""
-    r = (ggx_aniso(p, i, o) - rho) * np.sqrt(w)[:, None]
+    r = (ggx_aniso(p, i, o) - rho) * np.sqrt(w)
     return float(np.sum(r * r))
 
 
@@ -84,7 +85,7 @@ def fit(i, o, rho, w):
         lo = [0, 0, 0, 0, 0, 0, 1e-3, 1e-3, -np.pi, 1.01]
         hi = [2, 2, 2, 50, 50, 50, 2.0, 2.0, 2 * np.pi, 5.0]
         r = least_squares(
-            lambda p: ((ggx_aniso(p, i, o) - rho) * np.sqrt(w)[:, None]).ravel(),
+            lambda p: ((ggx_aniso(p, i, o) - rho) * np.sqrt(w)).ravel(),
             p0,
             bounds=(lo, hi),
             x_scale="jac",

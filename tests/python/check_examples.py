@@ -14,9 +14,13 @@
    a subset of its points and only the amplitudes per point, so a fit of
    the point alone, on the same weighted objective, must score at least as
    well; and its reduced chi-square must be near the noise model's 1
-   (below 3, for GGX's shape against the true lobe): exported directions,
-   reflectances or weights that disagree with what refl fitted would be
-   orders of magnitude off.
+   (`tests/noise_model.rs` holds the model to the sensor within 5%), plus
+   GGX's misfit to the true lobe, which is anisotropic Beckmann and which
+   GGX matches only approximately: below 5. Exported directions or
+   reflectances that disagree with what refl fitted would be orders of
+   magnitude off; the luminance's weight applied to each channel (a
+   Bayer sensor's channel is several times noisier than its luminance)
+   gives about 7.
 """
 
 import json
@@ -90,7 +94,7 @@ def main():
             ours <= theirs * (1 + 1e-6),
             f"GGX at {col},{row}: SciPy's chi2 {ours:.1f} against refl's {theirs:.1f} ({r['samples']} samples)",
         )
-        check(0 < dof and ours / dof < 3.0, f"GGX at {col},{row}: reduced chi2 {ours / max(dof, 1):.2f}")
+        check(0 < dof and ours / dof < 5.0, f"GGX at {col},{row}: reduced chi2 {ours / max(dof, 1):.2f}")
         a, b = r["scipy"]["params"], r["refl"]["params"]
         print(
             f"     alphas SciPy {a['alpha_x']:.3f} {a['alpha_y']:.3f} at {np.degrees(a['angle_rad']):.1f} deg, "

@@ -105,6 +105,18 @@ pub fn export_samples(dir: &Path, out: &Path, stride: u32, progress: &mut dyn Pr
             })
             .inspect(|w| usable += u64::from(*w > 0.0));
         zip.array("weight", &[n, l], weights)?;
+        let channel_weights = points.iter().flat_map(|&p| {
+            let footprint = noise.footprint(ctx, p);
+            (0..lights).flat_map(move |q| {
+                let (rho, fl) = samples.get(q, p);
+                let in_view = ctx.pixels[p].is_some();
+                match noise.usable(ctx, p, q, rho, fl, &footprint).filter(|_| in_view) {
+                    Some((_, var)) => var.channel.map(|v| 1.0 / v),
+                    None => [0.0; 3],
+                }
+            })
+        });
+        zip.array("channel_weight", &[n, l, 3], channel_weights)?;
         Ok(usable)
     })();
     let finished = written.and_then(|usable| {
