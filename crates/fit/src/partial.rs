@@ -173,11 +173,10 @@ pub struct Scratch {
     confidence: Vec<f32>,
     sigma_i: Vec<f32>,
     fresnel: Vec<f32>,
-    /// Per sample: bilinear corners of its half vector, its NDF value in
-    /// the current iteration, its weight in the bias correction.
+    /// Per sample: bilinear corners of its half vector and its NDF value
+    /// in the current iteration.
     corners: Vec<[(u32, f32); 4]>,
     d: Vec<f32>,
-    unit: Vec<f64>,
 }
 
 /// Scalar specular sample counts as significant above this many standard
@@ -307,8 +306,8 @@ impl SplatLayout<'_> {
     /// pooling's many samples per cell pay for.
     ///
     /// `d[k]` is sample `k`'s NDF value and `weight[k]` its weight (0 for a
-    /// sample that is not used).
-    pub(crate) fn twice(&self, values: &mut [f32], d: &[f32], weight: &[f64], passes: u32) {
+    /// sample that is not used); without weights every sample weighs 1.
+    pub(crate) fn twice(&self, values: &mut [f32], d: &[f32], weight: Option<&[f64]>, passes: u32) {
         let cells = self.grid.len();
         let mut sum_w = vec![0.0f64; cells];
         let mut sum_wr = vec![0.0f64; cells];
@@ -316,7 +315,8 @@ impl SplatLayout<'_> {
         for _ in 0..passes {
             sum_w.iter_mut().for_each(|v| *v = 0.0);
             sum_wr.iter_mut().for_each(|v| *v = 0.0);
-            for (k, (&dk, &wk)) in d.iter().zip(weight).enumerate() {
+            for (k, &dk) in d.iter().enumerate() {
+                let wk = weight.map_or(1.0, |w| w[k]);
                 if !(wk > 0.0) || !dk.is_finite() {
                     continue;
                 }
@@ -409,8 +409,6 @@ fn splat_once(grid: NdfGrid, ps: &PointSamples, spec: &[f32], sigma_o: f32, pass
         s.sum_w.iter().zip(&s.sum_wd).map(|(&w, &wd)| if w > 0.0 { wd / w } else { 0.0 }).collect();
     push_pull(grid.n_theta as usize, grid.n_phi as usize, &mut values, &s.confidence, &s.covered);
     if passes > 0 {
-        s.unit.clear();
-        s.unit.resize(ps.samples.len(), 1.0);
         let layout = SplatLayout {
             grid,
             cells: &s.cells,
@@ -419,7 +417,7 @@ fn splat_once(grid: NdfGrid, ps: &PointSamples, spec: &[f32], sigma_o: f32, pass
             confidence: &s.confidence,
             covered: &s.covered,
         };
-        layout.twice(&mut values, &s.d, &s.unit, passes);
+        layout.twice(&mut values, &s.d, None, passes);
     }
     let mut cov = Coverage::empty(cells);
     for (c, v) in values.iter_mut().enumerate() {

@@ -239,7 +239,7 @@ fn pool_cluster(
         let mut values: Vec<f32> =
             sum_w.iter().zip(&sum_wd).map(|(&w, &wd)| if w > 0.0 { (wd / w) as f32 } else { 0.0 }).collect();
         push_pull(grid.n_theta as usize, grid.n_phi as usize, &mut values, &confidence, &covered);
-        layout.twice(&mut values, &d_all, &weight, settings.bias_passes);
+        layout.twice(&mut values, &d_all, Some(&weight), settings.bias_passes);
         let mut cov = Coverage::empty(cells);
         for (c, v) in values.iter_mut().enumerate() {
             if covered[c] && v.is_finite() {

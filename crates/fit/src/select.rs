@@ -242,15 +242,14 @@ pub fn select(maps: &PointMaps, cluster: &[u32], clusters: usize, scores: &Score
         let noise = sum(&|p| scores.noise_ss[p]);
         let sd = (2.0 * sum(&|p| scores.noise_ss2[p])).sqrt();
         // Simplest first; a class unusable at any member is out.
-        let class_sse =
-            [sum(&|p| scores.model_sse[iso][p]), sum(&|p| scores.model_sse[aniso][p]), sum(&|p| scores.table_sse[p])];
-        let best = class_sse.iter().copied().filter(|x| x.is_finite()).fold(f64::INFINITY, f64::min);
-        let best_k = class_sse.iter().position(|&x| x == best).unwrap_or(2);
         let per_point = |k: usize, p: usize| match k {
             0 => scores.model_sse[iso][p],
             1 => scores.model_sse[aniso][p],
             _ => scores.table_sse[p],
         };
+        let class_sse: [f64; 3] = std::array::from_fn(|k| sum(&|p| per_point(k, p)));
+        let best = class_sse.iter().copied().filter(|x| x.is_finite()).fold(f64::INFINITY, f64::min);
+        let best_k = class_sse.iter().position(|&x| x == best).unwrap_or(2);
         let margin: [f64; 3] = std::array::from_fn(|k| {
             let scored = m.iter().filter(|&&p| scores.n[p] > 0);
             NOISE_SIGMAS * sd.max(paired_sd(scored.map(|&p| per_point(k, p) - per_point(best_k, p))))
