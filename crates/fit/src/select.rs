@@ -33,15 +33,26 @@
 //! to guess. A plan too short to spare the steps is scored on the fit's own
 //! samples, which favour the table; the summary says which.
 //!
+//! **Stand-ins.** A cluster's analytic shape can fail at a few of its
+//! points by orders of magnitude (a lobe sharper than the lights' spacing
+//! that a point's amplitude turns into a spike where a held-out light
+//! falls) while it predicts as well as the table elsewhere. Per
+//! region and analytic class, a point whose excess score over the table is
+//! an outlier among the region's excesses and beyond the noise at the point
+//! keeps its table ([`stand_ins`]); the class's region score counts the
+//! table there. Only the refit's points are scored (a quarter of a large
+//! grid), so only they can be found; the rest take the region's class.
+//!
 //! **Choice.** Per cluster, the class with the lowest score wins, unless a
 //! simpler class's score is within [`NOISE_SIGMAS`] standard deviations of
 //! it, the deviation being the larger of two:
-//! - the noise's: with Gaussian noise of variance `s_j^2` per sample, a sum
-//!   of squared residuals varies by `sqrt(2 sum s_j^4)` from the noise
-//!   alone, and a difference chance can make does not buy a more complex
-//!   model. This is the complexity penalty, derived from the noise model
-//!   rather than from a count of parameters; it is the whole deviation
-//!   where both classes fit to within the noise.
+//! - the noise's: the two classes' residuals on a sample differ by
+//!   `r_a - r_b` whatever the noise, and their squares by that times
+//!   `r_a + r_b`, whose noise has variance `4 s^2` (cosine-weighted); so
+//!   the difference of the sums varies by `2 sqrt(sum (r_a - r_b)^2 s^2)`
+//!   from the noise alone ([`Scores::pair_var`]). A difference chance can
+//!   make does not buy a more complex model: this is the complexity
+//!   penalty, from the noise model rather than a count of parameters.
 //! - the points' (a paired test with the region's points as the units):
 //!   the per-point differences of the two scores, summed over the `n`
 //!   points with scored samples, vary by
@@ -100,6 +111,29 @@ pub struct Scores {
     pub n: Vec<u32>,
     pub noise_ss: Vec<f64>,
     pub noise_ss2: Vec<f64>,
+    /// Per point, per pair of predictors `(a, b)` (the models in order,
+    /// then the table): `sum_j (r_aj - r_bj)^2 s_j^2`, the residuals'
+    /// difference squared times the sample's noise variance, all
+    /// cosine-weighted: a quarter of the noise's variance of the
+    /// difference of the two scores. With `r = (f - y) cos` and `y` noisy
+    /// with variance `s^2`, `r_a^2 - r_b^2 = (r_a - r_b)(r_a + r_b)`, whose
+    /// noise is `(r_a - r_b)` times a term of variance `4 s^2 cos^2`.
+    /// Row-major `(models + 1)^2` per point.
+    pub pair_var: Vec<f64>,
+}
+
+impl Scores {
+    /// Predictor `a`'s score at point `p` (the models in order, then the
+    /// table).
+    pub fn sse(&self, a: usize, p: usize) -> f64 {
+        if a == self.models.len() { self.table_sse[p] } else { self.model_sse[a][p] }
+    }
+
+    /// [`Scores::pair_var`] of predictors `a` and `b` at point `p`.
+    pub fn pair(&self, p: usize, a: usize, b: usize) -> f64 {
+        let w = self.models.len() + 1;
+        self.pair_var[p * w * w + a * w + b]
+    }
 }
 
 /// Score the tabulated model of `maps` and every fitted analytic model on
@@ -107,14 +141,12 @@ pub struct Scores {
 pub fn scores(on: ScoredOn, samples: &[Vec<Sample>], view: &[Vec3], maps: &PointMaps, fits: &[ModelFit]) -> Scores {
     let op = MaskingOperator::new(maps.tables.grid());
     let n_params: Vec<usize> = fits.iter().map(|f| f.model.n_params()).collect();
-    let per_point: Vec<(f64, Vec<f64>, u32, f64, f64)> = (0..maps.len())
+    let m = fits.len();
+    let per_point: Vec<(Vec<f64>, u32, f64, f64, Vec<f64>)> = (0..maps.len())
         .into_par_iter()
         .map(|p| {
             let s = &samples[p];
             let o = view[p];
-            let sse = |f: &dyn Fn(Vec3) -> f32| -> f64 {
-                s.iter().map(|x| (((f(x.i) - lum(x.rho)) * x.i.z) as f64).powi(2)).sum()
-            };
             let kd = Vec3::from(maps.kd[p]);
             let t = maps.tables.get(p);
             let table: Box<dyn Brdf> = if maps.flags[p] & point_flag::NO_SPECULAR == 0 && t.integral_cos() > 0.0 {
@@ -127,31 +159,51 @@ pub fn scores(on: ScoredOn, samples: &[Vec<Sample>], view: &[Vec3], maps: &Point
             } else {
                 Box::new(brdf::model::Lambert { albedo: kd })
             };
-            let table_sse = sse(&|i| lum(table.eval(i, o).to_array()));
-            let model_sse = fits
+            let models: Vec<Option<std::sync::Arc<dyn Brdf>>> = fits
                 .iter()
                 .zip(&n_params)
-                .map(|(f, &k)| match f.params.get(p * k..(p + 1) * k).and_then(|q| f.model.build(q)) {
-                    Some(m) => sse(&|i| lum(m.eval(i, o).to_array())),
-                    None => f64::NAN,
-                })
+                .map(|(f, &k)| f.params.get(p * k..(p + 1) * k).and_then(|q| f.model.build(q)))
                 .collect();
+            // Per predictor (the models, then the table): the sum of
+            // squared residuals; per pair, the sum of squared differences
+            // of their residuals times each sample's noise variance.
+            let mut sse = vec![0.0f64; m + 1];
+            let mut pair = vec![0.0f64; (m + 1) * (m + 1)];
+            let mut r = vec![0.0f64; m + 1];
+            for x in s {
+                let c = x.i.z as f64;
+                let y = lum(x.rho) as f64;
+                for (k, b) in models.iter().enumerate() {
+                    r[k] = b.as_ref().map_or(f64::NAN, |b| (lum(b.eval(x.i, o).to_array()) as f64 - y) * c);
+                }
+                r[m] = (lum(table.eval(x.i, o).to_array()) as f64 - y) * c;
+                let v = x.var as f64 * c * c;
+                for a in 0..=m {
+                    sse[a] += r[a] * r[a];
+                    for b in a + 1..=m {
+                        let d = (r[a] - r[b]).powi(2) * v;
+                        pair[a * (m + 1) + b] += d;
+                        pair[b * (m + 1) + a] += d;
+                    }
+                }
+            }
             let v = |x: &Sample| x.var as f64 * (x.i.z as f64).powi(2);
             let ss = s.iter().map(v).sum();
             let ss2 = s.iter().map(|x| v(x).powi(2)).sum();
-            (table_sse, model_sse, s.len() as u32, ss, ss2)
+            (sse, s.len() as u32, ss, ss2, pair)
         })
         .collect();
     let mut out = Scores { on, models: fits.iter().map(|f| f.model).collect(), ..Scores::default() };
-    out.model_sse = vec![Vec::with_capacity(maps.len()); fits.len()];
-    for (t, m, n, ss, ss2) in per_point {
-        out.table_sse.push(t);
-        for (k, v) in m.into_iter().enumerate() {
+    out.model_sse = vec![Vec::with_capacity(maps.len()); m];
+    for (sse, n, ss, ss2, pair) in per_point {
+        out.table_sse.push(sse[m]);
+        for (k, v) in sse.into_iter().take(m).enumerate() {
             out.model_sse[k].push(v);
         }
         out.n.push(n);
         out.noise_ss.push(ss);
         out.noise_ss2.push(ss2);
+        out.pair_var.extend(pair);
     }
     out
 }
@@ -163,7 +215,8 @@ pub struct RegionChoice {
     /// Scored samples over the region's points.
     pub samples: u64,
     /// RMS residual of the isotropic, anisotropic and tabulated classes
-    /// over the noise's RMS on the same samples (1 is a perfect model).
+    /// over the noise's RMS on the same samples (1 is a perfect model); an
+    /// analytic class's counts the table at its stand-ins.
     pub ratio: [Option<f32>; 3],
     /// The noise's standard deviation of a score, relative to the noise's
     /// sum.
@@ -174,6 +227,14 @@ pub struct RegionChoice {
     /// noise's sum (absent from materials made before the points' test).
     #[serde(default)]
     pub margin: [Option<f32>; 3],
+    /// Per analytic class, the members where it fails so far beyond the
+    /// table that the table stands in for it ([`stand_ins`]).
+    #[serde(default)]
+    pub stand_ins: [usize; 2],
+    /// Members kept on their tables though the region chose an analytic
+    /// class (its stand-ins).
+    #[serde(default)]
+    pub tabulated_points: usize,
     pub chosen: u8,
 }
 
@@ -237,33 +298,43 @@ pub fn select(maps: &PointMaps, cluster: &[u32], clusters: usize, scores: &Score
     }
     let mut choice = vec![DIFFUSE; n];
     let mut regions = Vec::new();
+    let table = scores.models.len();
+    let predictor = [iso, aniso, table];
     for m in members.iter().filter(|m| !m.is_empty()) {
         let sum = |f: &dyn Fn(usize) -> f64| m.iter().map(|&p| f(p)).sum::<f64>();
         let noise = sum(&|p| scores.noise_ss[p]);
         let sd = (2.0 * sum(&|p| scores.noise_ss2[p])).sqrt();
-        // Simplest first; a class unusable at any member is out.
-        let per_point = |k: usize, p: usize| match k {
-            0 => scores.model_sse[iso][p],
-            1 => scores.model_sse[aniso][p],
-            _ => scores.table_sse[p],
-        };
-        let class_sse: [f64; 3] = std::array::from_fn(|k| sum(&|p| per_point(k, p)));
+        // Per analytic class, the members where the table stands in.
+        let stand_in: [Vec<bool>; 2] = std::array::from_fn(|k| stand_ins(scores, m, predictor[k], table));
+        // The predictor class `k` uses at the region's `i`-th point.
+        let at = |k: usize, i: usize| if k < 2 && stand_in[k][i] { table } else { predictor[k] };
+        let class_sse: [f64; 3] =
+            std::array::from_fn(|k| m.iter().enumerate().map(|(i, &p)| scores.sse(at(k, i), p)).sum());
         let best = class_sse.iter().copied().filter(|x| x.is_finite()).fold(f64::INFINITY, f64::min);
         let best_k = class_sse.iter().position(|&x| x == best).unwrap_or(2);
         let margin: [f64; 3] = std::array::from_fn(|k| {
-            let scored = m.iter().filter(|&&p| scores.n[p] > 0);
-            NOISE_SIGMAS * sd.max(paired_sd(scored.map(|&p| per_point(k, p) - per_point(best_k, p))))
+            let noise_sd =
+                2.0 * m.iter().enumerate().map(|(i, &p)| scores.pair(p, at(k, i), at(best_k, i))).sum::<f64>().sqrt();
+            let d = m
+                .iter()
+                .enumerate()
+                .filter(|&(_, &p)| scores.n[p] > 0)
+                .map(|(i, &p)| scores.sse(at(k, i), p) - scores.sse(at(best_k, i), p));
+            NOISE_SIGMAS * noise_sd.max(paired_sd(d))
         });
-        // A region with no scored sample (none of its points in the
-        // choice's refit) keeps the full model: the table.
+        // Simplest first; a class unusable at any member is out. A region
+        // with no scored sample (none of its points in the choice's refit)
+        // keeps the full model: the table.
         let k = if noise > 0.0 {
             (0..3).position(|k| class_sse[k].is_finite() && class_sse[k] <= best + margin[k]).unwrap_or(2)
         } else {
             2
         };
         let class = [ISOTROPIC, ANISOTROPIC, TABULATED][k];
-        for &p in m {
-            choice[p] = class;
+        let mut tables = 0;
+        for (i, &p) in m.iter().enumerate() {
+            choice[p] = if at(k, i) == table { TABULATED } else { class };
+            tables += usize::from(k < 2 && at(k, i) == table);
         }
         let ratio = |x: f64| (x.is_finite() && noise > 0.0).then(|| (x / noise).sqrt() as f32);
         regions.push(RegionChoice {
@@ -274,6 +345,8 @@ pub fn select(maps: &PointMaps, cluster: &[u32], clusters: usize, scores: &Score
             margin: std::array::from_fn(|k| {
                 (class_sse[k].is_finite() && noise > 0.0).then(|| (margin[k] / noise) as f32)
             }),
+            stand_ins: std::array::from_fn(|k| stand_in[k].iter().filter(|&&x| x).count()),
+            tabulated_points: tables,
             chosen: class,
         });
     }
@@ -324,6 +397,74 @@ fn paired_sd(d: impl Iterator<Item = f64>) -> f64 {
     (n as f64 / (n - 1) as f64 * ss).sqrt()
 }
 
+/// The region's members (`m`) where the predictor `a` misses its scored
+/// samples so much worse than the table that the table stands in for it:
+/// the point's excess over the table's score lies beyond the noise's
+/// [`NOISE_SIGMAS`] deviations of that difference at the point, and is an
+/// outlier among the members' excesses (beyond the median by
+/// [`outlier_z`] robust deviations, `1.4826` times the median absolute
+/// deviation). An analytic shape shared by a cluster can fail at a few of
+/// its points (a lobe sharper than the lights' spacing whose peak a
+/// point's amplitude turns into a spike); a region's sum that a few such
+/// points decide says nothing about the rest, and those points are better
+/// served by their tables whatever the region chooses.
+fn stand_ins(scores: &Scores, m: &[usize], a: usize, table: usize) -> Vec<bool> {
+    let excess = |p: usize| scores.sse(a, p) - scores.sse(table, p);
+    let mut d: Vec<f64> =
+        m.iter().filter(|&&p| scores.n[p] > 0).map(|&p| excess(p)).filter(|x| x.is_finite()).collect();
+    if d.len() < 3 {
+        return vec![false; m.len()];
+    }
+    let median = |v: &mut [f64]| {
+        v.sort_by(f64::total_cmp);
+        let h = v.len() / 2;
+        if v.len() % 2 == 1 { v[h] } else { 0.5 * (v[h - 1] + v[h]) }
+    };
+    let med = median(&mut d);
+    let mut dev: Vec<f64> = d.iter().map(|x| (x - med).abs()).collect();
+    let spread = 1.4826 * median(&mut dev);
+    let z = outlier_z(d.len());
+    m.iter()
+        .map(|&p| {
+            let e = excess(p);
+            scores.n[p] > 0
+                && e.is_finite()
+                && e - med > z * spread
+                && e > NOISE_SIGMAS * 2.0 * scores.pair(p, a, table).sqrt()
+        })
+        .collect()
+}
+
+/// The chance that any of a region's points counts as an outlier when the
+/// excesses are Gaussian: the same one-sided 2% as [`NOISE_SIGMAS`], shared
+/// among the points.
+const OUTLIER_CHANCE: f64 = 0.0228;
+
+/// The standard normal's upper quantile at `OUTLIER_CHANCE / n` (a
+/// Bonferroni bound over `n` points): 2.0 for one point, 3.5 for 100, 4.1
+/// for 1,000.
+fn outlier_z(n: usize) -> f64 {
+    let p = OUTLIER_CHANCE / n.max(1) as f64;
+    // Bisection on the upper tail, which falls monotonically.
+    let (mut lo, mut hi) = (0.0f64, 40.0f64);
+    for _ in 0..100 {
+        let mid = 0.5 * (lo + hi);
+        if upper_tail(mid) > p { lo = mid } else { hi = mid }
+    }
+    0.5 * (lo + hi)
+}
+
+/// `P(Z > z)` for a standard normal `Z`, `z >= 0`: `erfc(z / sqrt 2) / 2`
+/// with erfc from Abramowitz and Stegun 7.1.26 (absolute error below
+/// 1.5e-7).
+fn upper_tail(z: f64) -> f64 {
+    let x = z / std::f64::consts::SQRT_2;
+    let t = 1.0 / (1.0 + 0.327_591_1 * x);
+    let poly =
+        t * (0.254_829_592 + t * (-0.284_496_736 + t * (1.421_413_741 + t * (-1.453_152_027 + t * 1.061_405_429))));
+    0.5 * poly * (-x * x).exp()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -354,7 +495,15 @@ mod tests {
             n: vec![200; n],
             noise_ss: vec![k; n],
             noise_ss2: vec![k; n],
+            pair_var: pairs(n, 3, k),
         }
+    }
+
+    /// Pair variances for `n` points and `w` predictors where every
+    /// difference of two scores moves by `sqrt(2 k)` per point from the
+    /// noise, as each score does.
+    fn pairs(n: usize, w: usize, k: f64) -> Vec<f64> {
+        (0..n).flat_map(|_| (0..w * w).map(move |i| if i % (w + 1) == 0 { 0.0 } else { k / 2.0 })).collect()
     }
 
     fn chosen(s: &Scores, n: usize) -> u8 {
@@ -381,7 +530,7 @@ mod tests {
     }
 
     #[test]
-    fn a_difference_that_a_few_points_decide_does_not_buy_the_table() {
+    fn a_difference_that_a_few_points_decide_does_not_buy_the_table_for_the_region() {
         // 20 points; the table misses by 4 noise variances per sample
         // where the anisotropic lobe misses by 5, far beyond the noise's
         // resolution (0.1 in ratio^2 with 4,000 samples).
@@ -397,7 +546,62 @@ mod tests {
         let total = |v: &[f64]| v.iter().sum::<f64>();
         assert!((total(&s.table_sse) - 4.0 * 200.0 * 20.0).abs() < 1e-6);
         assert!((total(&s.model_sse[1]) - 5.0 * 200.0 * 20.0).abs() < 1e-6);
-        assert_eq!(chosen(&s, n), ANISOTROPIC);
+        // The region keeps the lobe; the two points where it fails keep
+        // their tables.
+        let sel = select(&maps(n), &vec![0; n], 1, &s).unwrap();
+        assert_eq!(&sel.choice[..2], &[TABULATED; 2]);
+        assert!(sel.choice[2..].iter().all(|&c| c == ANISOTROPIC), "{:?}", sel.choice);
+        let r = &sel.summary.regions[0];
+        assert_eq!((r.chosen, r.tabulated_points, r.stand_ins[1]), (ANISOTROPIC, 2, 2));
+    }
+
+    #[test]
+    fn a_simple_class_that_fails_at_a_few_points_is_kept_only_where_it_holds() {
+        // 40 points where the isotropic lobe predicts as well as the table,
+        // but at three of them it puts a spike where a held-out light
+        // falls: 10^4 noise variances. Its total is 250 times the table's,
+        // and the points' spread of the difference is about as large as
+        // the total: the spikes are the whole difference.
+        let n = 40;
+        let mut s = scored(n, 1.0, 1.1, 1.0);
+        for p in [3, 17, 31] {
+            s.model_sse[0][p] = 1e4 * 200.0;
+            s.model_sse[1][p] = 1e4 * 200.0;
+        }
+        let sel = select(&maps(n), &vec![0; n], 1, &s).unwrap();
+        for p in 0..n {
+            let expected = if [3, 17, 31].contains(&p) { TABULATED } else { ISOTROPIC };
+            assert_eq!(sel.choice[p], expected, "point {p}");
+        }
+        // The region's ratios count the table at the spikes.
+        let r = &sel.summary.regions[0];
+        assert!((r.ratio[0].unwrap() - 1.0).abs() < 1e-6, "{:?}", r.ratio);
+        assert_eq!(r.stand_ins, [3, 3]);
+    }
+
+    #[test]
+    fn a_broad_spread_of_differences_has_no_stand_ins() {
+        // The table's advantage varies smoothly from point to point (a
+        // lobe missed by every class, by more or less): no point is an
+        // outlier, whatever the noise says of each one alone.
+        let n = 60;
+        let mut s = scored(n, 50.0, 40.0, 40.0);
+        for p in 0..n {
+            let x = (p as f64 + 0.5) / n as f64;
+            s.model_sse[1][p] = 200.0 * (40.0 + 20.0 * (x - 0.5));
+        }
+        let sel = select(&maps(n), &vec![0; n], 1, &s).unwrap();
+        assert_eq!(sel.summary.regions[0].stand_ins[1], 0);
+    }
+
+    #[test]
+    fn the_outlier_threshold_is_the_normal_quantile_shared_among_the_points() {
+        // One point: the one-sided 2.28% quantile, 2.0.
+        assert!((outlier_z(1) - 2.0).abs() < 2e-3, "{}", outlier_z(1));
+        // P(Z > 3.5) = 2.33e-4 (about 2.28% / 100); P(Z > 4.08) = 2.25e-5.
+        assert!((outlier_z(100) - 3.5).abs() < 0.02, "{}", outlier_z(100));
+        assert!((outlier_z(1000) - 4.08).abs() < 0.02, "{}", outlier_z(1000));
+        assert!((upper_tail(0.0) - 0.5).abs() < 1e-6 && (upper_tail(1.0) - 0.158_655).abs() < 1e-6);
     }
 
     #[test]
@@ -448,6 +652,7 @@ mod tests {
         let mut s = scored(n, 1.3, 1.2, 1.0);
         s.models.extend([AnalyticModel::WardIso, AnalyticModel::WardAniso]);
         s.model_sse.extend([vec![0.5 * 200.0; n], vec![0.5 * 200.0; n]]);
+        s.pair_var = pairs(n, 5, 200.0);
         let sel = select(&maps(n), &vec![0; n], 1, &s).unwrap();
         assert_eq!((sel.isotropic, sel.anisotropic), (AnalyticModel::CookTorrance, AnalyticModel::GgxAniso));
         assert_eq!(sel.choice[0], TABULATED);
