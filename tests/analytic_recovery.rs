@@ -79,7 +79,7 @@ fn recover(model: AnalyticModel, truth: &[f32]) -> Vec<(Vec<f32>, Vec3)> {
     let f = run(&s, settings.clone());
     let a = AnalyticSettings { models: vec![model], clusters: 2, seed: 3, ..AnalyticSettings::default() };
     let ev = evidence(&f.ctx, &f.store, &f.maps, &settings, &a);
-    let fit = fit_model(model, &f.maps, &ev);
+    let fit = fit_model(model, &f.maps, &ev, None);
     let n = model.n_params();
     INTERIOR.iter().map(|&p| (fit.params[p * n..(p + 1) * n].to_vec(), f.ctx.view[p])).collect()
 }

@@ -24,6 +24,20 @@ impl PointMaps {
         self.kd.len()
     }
 
+    /// `n` like points (kd 0.2, ks 0.1, index 1.5, empty tables on the
+    /// default grid), for unit tests.
+    #[cfg(test)]
+    pub(crate) fn alike(n: usize) -> Self {
+        PointMaps {
+            kd: vec![[0.2; 3]; n],
+            ks: vec![[0.1; 3]; n],
+            eta: vec![1.5; n],
+            flags: vec![0; n],
+            tables: TableSet::new(brdf::ndf::NdfGrid::DEFAULT, n),
+            stats: vec![Default::default(); n],
+        }
+    }
+
     pub fn is_empty(&self) -> bool {
         self.kd.is_empty()
     }

@@ -468,19 +468,11 @@ fn upper_tail(z: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use brdf::ndf::{NdfGrid, TableSet};
 
     /// `n` points in one cluster, all specular, 200 samples each with
     /// noise variance 1 (cosine-weighted).
     fn maps(n: usize) -> PointMaps {
-        PointMaps {
-            kd: vec![[0.2; 3]; n],
-            ks: vec![[0.1; 3]; n],
-            eta: vec![1.5; n],
-            flags: vec![0; n],
-            tables: TableSet::new(NdfGrid::DEFAULT, n),
-            stats: vec![Default::default(); n],
-        }
+        PointMaps::alike(n)
     }
 
     /// Scores whose ratios^2 per point are `iso`, `aniso` and `table`

@@ -319,8 +319,11 @@ impl ShapeProblem<'_> {
     }
 }
 
-/// Fit `model` over the grid.
-pub fn fit_model(model: AnalyticModel, maps: &PointMaps, ev: &Evidence) -> ModelFit {
+/// Fit `model` over the grid. With `prior` (an earlier fit of the same
+/// model over the same grid), each cluster starts from the prior's shape at
+/// its first member where that is in the model's domain, instead of from
+/// the moments of its tables.
+pub fn fit_model(model: AnalyticModel, maps: &PointMaps, ev: &Evidence, prior: Option<&ModelFit>) -> ModelFit {
     let t0 = Instant::now();
     let n = maps.len();
     let k = ev.clusters;
@@ -359,7 +362,13 @@ pub fn fit_model(model: AnalyticModel, maps: &PointMaps, ev: &Evidence) -> Model
                 }
                 None => Moments { alpha_x: 0.3, alpha_y: 0.3, angle_rad: 0.0 },
             };
-            let u0 = shape::init(model, &start, eta);
+            let k = model.n_params();
+            // The prior's shape at the first member it gave a specular lobe.
+            let from_prior = prior.filter(|f| f.model == model && f.params.len() == n * k).and_then(|f| {
+                let p = *m.iter().find(|&&p| f.params[p * k + 3..p * k + 6].iter().any(|&x| x > 0.0))?;
+                shape::unshape(model, &f.params[p * k + 6..(p + 1) * k])
+            });
+            let u0 = from_prior.unwrap_or_else(|| shape::init(model, &start, eta));
             let step = (m.len() as f32 / per_cluster as f32).max(1.0);
             let chosen: Vec<usize> = (0..per_cluster.min(m.len())).map(|j| m[(j as f32 * step) as usize]).collect();
             let subs: Vec<Vec<Sample>> = chosen.iter().map(|&p| stride_sample(&ev.samples[p], per_point)).collect();
@@ -434,6 +443,29 @@ mod tests {
             })
             .collect();
         (bd, bs, s)
+    }
+
+    #[test]
+    fn a_prior_fit_gives_each_cluster_its_start() {
+        // Two points in one cluster and no samples to fit: the shape is the
+        // start. The prior gave point 0 no lobe and point 1 a Beckmann lobe.
+        let n = 2;
+        let maps = PointMaps::alike(n);
+        let ev = Evidence { cluster: vec![0; n], clusters: 1, samples: vec![Vec::new(); n], view: vec![Vec3::Z; n] };
+        let model = AnalyticModel::BeckmannAniso;
+        let lobe = [0.07f32, 0.21, 0.5, 1.8];
+        let mut params = vec![0.2, 0.2, 0.2, 0.0, 0.0, 0.0, 0.3, 0.3, 0.0, 1.5];
+        params.extend([0.2, 0.2, 0.2, 0.5, 0.5, 0.5]);
+        params.extend(lobe);
+        let prior = ModelFit { model, params, residual: vec![None; n], seconds: 0.0 };
+        let fit = fit_model(model, &maps, &ev, Some(&prior));
+        let k = model.n_params();
+        for (a, b) in fit.params[6..k].iter().zip(&lobe) {
+            assert!((a - b).abs() < 1e-5, "{:?} against {lobe:?}", &fit.params[6..k]);
+        }
+        // Without the prior, the start is the tables' moments (empty here).
+        let fit = fit_model(model, &maps, &ev, None);
+        assert!((fit.params[6] - lobe[0]).abs() > 0.01, "{:?}", &fit.params[..k]);
     }
 
     #[test]

@@ -110,6 +110,29 @@ pub fn shape(model: AnalyticModel, u: &[f64]) -> Vec<f32> {
     }
 }
 
+/// The unconstrained vector whose [`shape`] is `q` (a model's shape
+/// parameters as fitted), to start a fit where another ended; `None` for a
+/// shape outside the model's domain.
+pub fn unshape(model: AnalyticModel, q: &[f32]) -> Option<Vec<f64>> {
+    let ln = |v: f32| (v > 0.0 && v.is_finite()).then(|| (v as f64).ln());
+    let eta = |v: f32| ln((v - ETA_RANGE.0).max(0.02));
+    let logit = |v: f32| (v > 0.0 && v < 1.0).then(|| ((v / (1.0 - v)) as f64).ln());
+    let angle = |v: f32| v.is_finite().then_some(v as f64);
+    let u = match model {
+        AnalyticModel::Phong | AnalyticModel::WardIso => vec![ln(*q.first()?)?],
+        AnalyticModel::WardAniso | AnalyticModel::AshikhminShirley => {
+            vec![ln(*q.first()?)?, ln(*q.get(1)?)?, angle(*q.get(2)?)?]
+        }
+        AnalyticModel::Lafortune => vec![logit(-*q.first()?)?, logit(-*q.get(1)?)?, ln(*q.get(3)?)?],
+        AnalyticModel::CookTorrance => vec![ln(*q.first()?)?, eta(*q.get(1)?)?],
+        AnalyticModel::GgxAniso | AnalyticModel::BeckmannAniso => {
+            vec![ln(*q.first()?)?, ln(*q.get(1)?)?, angle(*q.get(2)?)?, eta(*q.get(3)?)?]
+        }
+        AnalyticModel::He => vec![ln(*q.first()?)?, ln(*q.get(1)?)?, eta(*q.get(2)?)?],
+    };
+    Some(u)
+}
+
 /// Cost class: He evaluates a series per sample (about 40x slower).
 pub fn expensive(model: AnalyticModel) -> bool {
     model == AnalyticModel::He
@@ -118,6 +141,21 @@ pub fn expensive(model: AnalyticModel) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn unshape_inverts_shape_for_every_model() {
+        for &model in AnalyticModel::ALL.iter() {
+            let m = Moments { alpha_x: 0.12, alpha_y: 0.3, angle_rad: 0.4 };
+            let u = init(model, &m, 1.7);
+            let q = shape(model, &u);
+            let back = unshape(model, &q).unwrap_or_else(|| panic!("{model:?}: {q:?}"));
+            assert_eq!(shape(model, &back).len(), q.len());
+            for (a, b) in shape(model, &back).iter().zip(&q) {
+                assert!((a - b).abs() <= 1e-5 * b.abs().max(1.0), "{model:?}: {q:?} -> {back:?}");
+            }
+        }
+        assert!(unshape(AnalyticModel::GgxAniso, &[0.0, 0.1, 0.0, 1.5]).is_none());
+    }
     use brdf::ndf::{Beckmann, NdfGrid};
 
     #[test]
