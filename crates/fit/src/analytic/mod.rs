@@ -18,7 +18,9 @@
 //!
 //! **Start.** Every shape starts from the slope moments of the cluster's
 //! mean NDF ([`shape::Moments`]), converted to each model's parameters, and
-//! the median fitted Fresnel index.
+//! the median fitted Fresnel index; or, given a prior fit of the same model
+//! (the model choice's refit is given the main fit), from the prior's shape
+//! at the cluster's first member with a lobe.
 
 pub mod shape;
 
