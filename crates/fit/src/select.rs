@@ -170,6 +170,7 @@ pub fn scores(on: ScoredOn, samples: &[Vec<Sample>], view: &[Vec3], maps: &Point
             let mut sse = vec![0.0f64; m + 1];
             let mut pair = vec![0.0f64; (m + 1) * (m + 1)];
             let mut r = vec![0.0f64; m + 1];
+            let (mut ss, mut ss2) = (0.0f64, 0.0f64);
             for x in s {
                 let c = x.i.z as f64;
                 let y = lum(x.rho) as f64;
@@ -178,6 +179,8 @@ pub fn scores(on: ScoredOn, samples: &[Vec<Sample>], view: &[Vec3], maps: &Point
                 }
                 r[m] = (lum(table.eval(x.i, o).to_array()) as f64 - y) * c;
                 let v = x.var as f64 * c * c;
+                ss += v;
+                ss2 += v * v;
                 for a in 0..=m {
                     sse[a] += r[a] * r[a];
                     for b in a + 1..=m {
@@ -187,9 +190,6 @@ pub fn scores(on: ScoredOn, samples: &[Vec<Sample>], view: &[Vec3], maps: &Point
                     }
                 }
             }
-            let v = |x: &Sample| x.var as f64 * (x.i.z as f64).powi(2);
-            let ss = s.iter().map(v).sum();
-            let ss2 = s.iter().map(|x| v(x).powi(2)).sum();
             (sse, s.len() as u32, ss, ss2, pair)
         })
         .collect();
