@@ -5,7 +5,8 @@
 # --json`. Prints one table row per sample and keeps each eval JSON.
 #
 #   bash scripts/eval-all.sh [--quality Q] [--bin DIR] [--rig FILE]
-#                            [--sim-rig RIG] [--no-geometric-calibration] [OUT]
+#                            [--sim-rig RIG] [--no-geometric-calibration]
+#                            [--hdr N] [--bracket every|clipped] [OUT]
 #
 # --rig names a rig file (default the embedded simulated rig; e.g.
 # scripts/rigs/sim-no-patches.toml, the same rig without the reference
@@ -15,6 +16,8 @@
 # calibrates the rig with the dark and white scans only, so that every
 # capture trusts the rig file's camera (the figures "for scale" of an
 # uncalibrated rig).
+# --hdr and --bracket override the preset's HDR bracket in every capture
+# (`--hdr 1`: one exposure, the presets' before adaptive brackets).
 # --bin names the directory holding `capture` and `refl` (default: this
 # tree's release build, built first), so two builds can be compared on the
 # same inputs. Without ../shared/data/rgl the RGL rows are skipped, and the
@@ -30,6 +33,7 @@ while [ $# -gt 0 ]; do
     --quality) quality="$2"; shift 2 ;;
     --bin) bin="$2"; shift 2 ;;
     --sim-rig) rig+=(--sim-rig "$2"); shift 2 ;;
+    --hdr|--bracket) rig+=("$1" "$2"); shift 2 ;;
     --rig) rig+=(--rig "$(cd "$(dirname "$2")" && pwd)/$(basename "$2")"); shift 2 ;;
     --no-geometric-calibration) no_geometry=1; shift ;;
     *) break ;;

@@ -21,6 +21,7 @@ fn every_led(steps: u32) -> CapturePlan {
         exposures_us: vec![20_000],
         gain: 1.0,
         dark_frames: 0,
+        bracket: setup::Bracket::Every,
     }
 }
 

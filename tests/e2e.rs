@@ -143,6 +143,51 @@ fn an_interrupted_capture_resumes_to_the_same_material() {
     same_files(&lab.path("clean/material"), &lab.path("cut/material"), MATERIAL_FILES);
 }
 
+/// The frames a capture stored: for each shot (step, LED, exposure), the
+/// clipped count it recorded.
+fn stored_shots(dir: &Path) -> std::collections::BTreeMap<(u64, u64, u64), u64> {
+    let manifest = std::fs::read_to_string(dir.join("manifest.jsonl")).unwrap();
+    manifest
+        .lines()
+        .map(|l| serde_json::from_str::<serde_json::Value>(l).unwrap())
+        .filter(|e| e["frame"]["kind"] == "shot")
+        .map(|e| {
+            let f = &e["frame"];
+            let key = (f["step"].as_u64().unwrap(), f["led"].as_u64().unwrap(), f["exposure"].as_u64().unwrap());
+            (key, e["clipped"].as_u64().expect("a shot records its clipped pixels"))
+        })
+        .collect()
+}
+
+/// An adaptive bracket (the presets' `clipped`) on brushed metal, whose
+/// highlights clip at the long exposure: a light has its short exposure
+/// exactly where its long one clipped on the sample, some lights need it
+/// and some do not, and a capture stopped in the middle resumes to the
+/// same frames and the same material.
+#[test]
+fn an_adaptive_bracket_takes_short_exposures_where_the_long_ones_clipped() {
+    let lab = Lab::new();
+    assert_ok(&lab.capture("brushed-metal", "clean", &NO_DRIFT), "clean capture");
+    let shots = stored_shots(&lab.path("clean"));
+    let long: Vec<_> = shots.iter().filter(|(k, _)| k.2 == 0).collect();
+    let short = shots.keys().filter(|k| k.2 == 1).count();
+    assert_eq!(long.len(), 12 * 20, "every light's long exposure");
+    for &(&(step, led, _), &clipped) in &long {
+        assert_eq!(
+            shots.contains_key(&(step, led, 1)),
+            clipped > 0,
+            "step {step} LED {led}: {clipped} pixels clipped at the long exposure"
+        );
+    }
+    assert!(short > 0 && short < long.len(), "{short} short exposures for {} lights", long.len());
+    let o = lab.capture("brushed-metal", "cut", &[&NO_DRIFT[..], &["--stop-after", "150"]].concat());
+    assert_eq!(o.status.code(), Some(130), "{}", stderr(&o));
+    let o = lab.cmd(CAPTURE).arg("--resume").arg(lab.path("cut")).output().unwrap();
+    assert_ok(&o, "resume");
+    assert_eq!(stored_shots(&lab.path("cut")), shots);
+    same_files(&lab.path("clean/material"), &lab.path("cut/material"), MATERIAL_FILES);
+}
+
 #[test]
 fn sigint_stops_the_capture_and_keeps_what_was_taken() {
     let lab = Lab::new();

@@ -49,6 +49,9 @@ struct Dwell {
     dwell: Duration,
     committed: Vec<(Shot, Instant, Instant)>,
     discarded: u64,
+    /// Shots (by index) passed over, as an adaptive bracket passes over a
+    /// shorter exposure nobody needs.
+    unwanted: Vec<u32>,
 }
 
 impl Exposer for Dwell {
@@ -64,6 +67,9 @@ impl Exposer for Dwell {
     }
     fn discarded(&mut self, _shot: &Shot) {
         self.discarded += 1;
+    }
+    fn wants(&mut self, shot: &Shot) -> bool {
+        !self.unwanted.contains(&shot.index)
     }
 }
 
@@ -131,7 +137,7 @@ async fn full_plan_survives_corruption_drops_duplicates_reboot_and_disconnect() 
     let started = std::time::Instant::now();
     let mut rig = open(&sim).await;
     let shots = plan(64, 40);
-    let mut ex = Dwell { dwell: Duration::from_micros(300), committed: Vec::new(), discarded: 0 };
+    let mut ex = Dwell { dwell: Duration::from_micros(300), committed: Vec::new(), discarded: 0, unwanted: Vec::new() };
     let stats = sequence::run(&mut rig, &shots, &mut ex).await.expect("the plan completes despite the faults");
     rig.shutdown().await;
     let link = rig.link_stats();
@@ -166,6 +172,9 @@ async fn full_plan_survives_corruption_drops_duplicates_reboot_and_disconnect() 
         );
         let pos_end = world.position_at(*t1, fast_mcu().rest_um);
         assert!((pos_end - shot.position_um as f64).abs() < 1.0, "the carriage moved during shot {}", shot.index);
+        // Retakes included, every position was reached moving toward +x,
+        // so the backlash lies the same way for every shot.
+        assert!(world.forward_at(*t0), "shot {} was approached toward -x", shot.index);
     }
     // Every firing beyond one per shot is explained: it was discarded for a
     // retake, cut short by the reboot or the disconnect, or was the command
@@ -216,6 +225,87 @@ async fn full_plan_survives_corruption_drops_duplicates_reboot_and_disconnect() 
     );
 }
 
+/// Shots the exposer does not want are passed over without lighting their
+/// LED, the last ones of the plan included: the last wanted shot is still
+/// confirmed and committed, and the bar ends dark.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn unwanted_shots_are_passed_over_and_the_last_wanted_one_is_committed() {
+    let dir = tempfile::tempdir().unwrap();
+    let world = World::new();
+    let sim = SimMcu::spawn_pty(fast_mcu(), FaultSpec::default(), world.clone(), Some(link_path(&dir))).await.unwrap();
+    let mut rig = open(&sim).await;
+    let shots = plan(3, 4);
+    let unwanted = vec![1, 2, 4, 5, 6, 7, 9, 10, 11];
+    let mut ex =
+        Dwell { dwell: Duration::from_micros(100), committed: Vec::new(), discarded: 0, unwanted: unwanted.clone() };
+    let stats = sequence::run(&mut rig, &shots, &mut ex).await.unwrap();
+    rig.shutdown().await;
+    tokio::time::sleep(Duration::from_millis(20)).await;
+    sim.stop().await.unwrap();
+    let committed: Vec<u32> = ex.committed.iter().map(|(s, _, _)| s.index).collect();
+    assert_eq!(committed, vec![0, 3, 8]);
+    assert_eq!(stats.committed, 3);
+    // Step 1 has no wanted shot, so the gantry goes from step 0 to step 2;
+    // both moves after homing go toward +x, so nothing more moves.
+    assert_eq!(stats.moves, 2);
+    let moves: Vec<(f64, f64)> = world
+        .events()
+        .iter()
+        .filter_map(|e| match e.effect {
+            Effect::MoveStart { from_um, to_um, .. } => Some((from_um, to_um)),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(moves.len(), 3, "homing and two moves: {moves:?}");
+    let (fired, overlap) = firings(&world);
+    assert!(!overlap, "two LEDs were lit at once");
+    assert_eq!(fired.iter().map(|f| f.led).collect::<Vec<_>>(), vec![0, 3, 0], "an unwanted shot was lit");
+    assert!(fired.iter().all(|f| f.off.is_some()), "an LED was left on");
+}
+
+/// A reboot at every command of a small plan in turn: wherever it lands,
+/// every shot is committed once, and every committed exposure was taken
+/// with the carriage arrived moving toward +x, retakes after the sequence
+/// had moved on included (`rig::sequence::APPROACH_UM`).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn wherever_a_reboot_lands_every_shot_is_approached_from_the_same_side() {
+    let shots = plan(3, 3);
+    let mut backward_retakes = 0;
+    for at in 1..=40 {
+        let dir = tempfile::tempdir().unwrap();
+        let faults = FaultSpec::parse(&format!("reboot-at={at}")).unwrap();
+        let world = World::new();
+        let sim = SimMcu::spawn_pty(fast_mcu(), faults, world.clone(), Some(link_path(&dir))).await.unwrap();
+        let locator = PortLocator::Path { path: sim.link_path.clone().unwrap() };
+        let s = RigSettings { led_max_on_ms: 1000, ..settings() };
+        // A reboot while the rig is opened and homed fails the opening:
+        // the sweep is over the sequence's commands.
+        let Ok(mut rig) = Rig::open(SerialConnector { locator, baud: 1_000_000 }, s).await else { continue };
+        if rig.home().await.is_err() {
+            continue;
+        }
+        let mut ex =
+            Dwell { dwell: Duration::from_micros(100), committed: Vec::new(), discarded: 0, unwanted: Vec::new() };
+        sequence::run(&mut rig, &shots, &mut ex).await.unwrap();
+        rig.shutdown().await;
+        tokio::time::sleep(Duration::from_millis(20)).await;
+        sim.stop().await.unwrap();
+        let mut committed: Vec<u32> = ex.committed.iter().map(|(s, _, _)| s.index).collect();
+        committed.sort();
+        assert_eq!(committed, (0..shots.len() as u32).collect::<Vec<_>>(), "reboot at command {at}");
+        for (shot, t0, _) in &ex.committed {
+            assert!(world.forward_at(*t0), "reboot at command {at}: shot {} approached toward -x", shot.index);
+        }
+        // A retake of a step's last shot after the move to the next step
+        // (a move toward -x that is not homing, which ends at -120 mm).
+        let moves_back = world.events().iter().any(
+            |e| matches!(e.effect, Effect::MoveStart { from_um, to_um, .. } if to_um < from_um && to_um > -119_000.0),
+        );
+        backward_retakes += moves_back as u32;
+    }
+    assert!(backward_retakes > 0, "no reboot made the sequence go back a step: the sweep tests nothing");
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_link_that_never_comes_back_ends_with_a_clear_error_and_leds_off() {
     let dir = tempfile::tempdir().unwrap();
@@ -225,7 +315,7 @@ async fn a_link_that_never_comes_back_ends_with_a_clear_error_and_leds_off() {
     let mut rig = open(&sim).await;
     rig.settings_mut().reconnect_timeout = Duration::from_millis(800);
     let shots = plan(4, 40);
-    let mut ex = Dwell { dwell: Duration::from_micros(100), committed: Vec::new(), discarded: 0 };
+    let mut ex = Dwell { dwell: Duration::from_micros(100), committed: Vec::new(), discarded: 0, unwanted: Vec::new() };
     let err = sequence::run(&mut rig, &shots, &mut ex).await.expect_err("must fail");
     let msg = err.to_string();
     assert!(msg.contains("USB cable") || msg.contains("power"), "error does not say what to check: {msg}");
@@ -246,7 +336,7 @@ async fn a_controller_that_stops_answering_exhausts_a_bounded_budget() {
     let mut rig = open(&sim).await;
     let budget = rig.settings().max_recoveries_per_op;
     let shots = plan(4, 40);
-    let mut ex = Dwell { dwell: Duration::from_micros(100), committed: Vec::new(), discarded: 0 };
+    let mut ex = Dwell { dwell: Duration::from_micros(100), committed: Vec::new(), discarded: 0, unwanted: Vec::new() };
     let err = sequence::run(&mut rig, &shots, &mut ex).await.expect_err("a hung controller cannot finish the plan");
     assert!(matches!(err, RigError::GaveUp { n, .. } if n == budget), "{err}");
     assert!(err.to_string().contains("power-cycle the controller"), "{err}");

@@ -37,6 +37,7 @@ pub fn run(s: &Scenario, settings: FitSettings) -> Fitted {
         exposures_us: s.exposures_us.clone(),
         gain: 1.0,
         dark_frames: 4,
+        bracket: setup::Bracket::Every,
     };
     let sensor = SensorModel::default();
     let leds = LedTruth { scale: vec![1.0; 40], profile_exponent: 1.0, nominal_current_ma: 200 };

@@ -78,6 +78,7 @@ pub fn synthetic(material: Arc<dyn SvBrdf>, side: u32, steps: u32, led_stride: u
         exposures_us: vec![(EXPOSURE_S * 1e6) as u32],
         gain: 1.0,
         dark_frames: 0,
+        bracket: setup::Bracket::Every,
     };
     plan.validate(&g)?;
     let inputs = FitInputs {

@@ -63,6 +63,10 @@ pub struct FramesReport {
     pub moves: u64,
     /// Frames the camera discarded and replaced.
     pub camera_discards: rig::camera::Discards,
+    /// Stored shots at one of the bracket's shorter exposures (an
+    /// adaptive bracket takes them only where the longer one clipped).
+    #[serde(default)]
+    pub shorter_exposures: u64,
 }
 
 /// The serial link's counters over the capture.

@@ -14,7 +14,7 @@
 //!    everything stored; `--resume DIR` continues.
 //! 5. Fit, write `material/`, renders and `report.json`.
 
-use std::collections::HashSet;
+use std::collections::{HashMap, HashSet};
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
@@ -88,6 +88,7 @@ pub fn plan_for(q: &Quality, g: &RigGeometry) -> Result<CapturePlan> {
         exposures_us: q.exposures_us.clone(),
         gain: 1.0,
         dark_frames: q.dark_frames,
+        bracket: q.bracket,
     };
     plan.validate(g)?;
     Ok(plan)
@@ -319,6 +320,32 @@ struct Shooter<'a, C: Camera> {
     discarded: u64,
     /// Consecutive frames that ended after their LED's maximum on-time.
     late: u32,
+    /// The frame's window over the sample's points, where clipping counts.
+    window: [u32; 4],
+    /// Whether each shot taken (by plan index) clipped in the window.
+    clipped: HashMap<u32, bool>,
+    /// Shots passed over (an adaptive bracket's shorter exposures nobody
+    /// needs), which leave the total.
+    passed: HashSet<u32>,
+}
+
+/// The frame's window (x0, y0, x1, y1, pixels) that holds everything the
+/// fit reads for the sample's points: each point's pixel with the reach of
+/// its bilinear sample and of the demosaicing (`fit::context::PIXEL_REACH`).
+fn points_window(g: &RigGeometry, grid: &PointGrid) -> [u32; 4] {
+    let (mut lo, mut hi) = (glam::Vec2::splat(f32::INFINITY), glam::Vec2::splat(f32::NEG_INFINITY));
+    for i in 0..grid.len() {
+        if let Some(px) = g.camera.project(grid.position_of(&g.sample, i).extend(0.0)) {
+            lo = lo.min(px);
+            hi = hi.max(px);
+        }
+    }
+    let reach = fit::context::PIXEL_REACH + 1.0;
+    if lo.x > hi.x {
+        return [0; 4];
+    }
+    let (lo, hi) = ((lo - reach).floor().max(glam::Vec2::ZERO), (hi + reach).ceil());
+    [lo.x as u32, lo.y as u32, (hi.x as u32).min(g.camera.width), (hi.y as u32).min(g.camera.height)]
 }
 
 /// Frames in a row that may arrive too late for their LED before the
@@ -354,7 +381,7 @@ impl<C: Camera> Shooter<'_, C> {
 }
 
 impl<C: Camera> Exposer for Shooter<'_, C> {
-    type Item = (Frame, tokio::time::Instant);
+    type Item = (Frame, tokio::time::Instant, u32);
     type Error = anyhow::Error;
 
     async fn expose(&mut self, shot: &Shot, lit_at: tokio::time::Instant) -> Result<Option<Self::Item>> {
@@ -393,27 +420,38 @@ impl<C: Camera> Exposer for Shooter<'_, C> {
         }
         self.late = 0;
         self.taken += 1;
-        Ok(Some((f, lit_at)))
+        let [x0, y0, x1, y1] = self.window;
+        let clipped = f.clipped_in(x0, y0, x1, y1);
+        // Known at once (not at commit), for the shorter exposure of this
+        // light; a retake of this shot records it again.
+        self.clipped.insert(shot.index, clipped > 0);
+        Ok(Some((f, lit_at, clipped)))
+    }
+
+    fn wants(&mut self, shot: &Shot) -> bool {
+        let wanted = self.plan.wants(shot, |k| self.clipped.get(&k).copied());
+        if !wanted {
+            self.passed.insert(shot.index);
+        }
+        wanted
     }
 
     async fn commit(&mut self, shot: &Shot, item: Self::Item) -> Result<()> {
-        let (frame, lit_at) = item;
+        let (frame, lit_at, clipped) = item;
         let kind = FrameKind::Shot(*shot);
-        tokio::task::block_in_place(|| self.store.write_frame(kind, &frame, Some(clock::to_mono(lit_at))))?;
+        tokio::task::block_in_place(|| {
+            self.store.write_frame(kind, &frame, Some(clock::to_mono(lit_at)), Some(clipped))
+        })?;
         if let Some(fit) = self.fit {
             // Waits (without holding a runtime worker) while the fitter is
             // 32 frames behind.
             fit.send(FrameMsg::Shot { shot: *shot, frame }).await?;
         }
         self.done += 1;
+        let total = self.total.saturating_sub(self.passed.len() as u64);
         let rate = self.done as f64 / self.started.elapsed().as_secs_f64().max(1e-9);
-        let left = self.total.saturating_sub(self.done) as f64;
-        self.rep.emit(Event::Frames {
-            done: self.done,
-            total: self.total,
-            rate_hz: rate,
-            eta_s: left / rate.max(1e-9),
-        });
+        let left = total.saturating_sub(self.done) as f64;
+        self.rep.emit(Event::Frames { done: self.done, total, rate_hz: rate, eta_s: left / rate.max(1e-9) });
         Ok(())
     }
 
@@ -460,7 +498,8 @@ pub async fn run(req: CaptureRequest, rep: &mut Reporter, cancel: watch::Receive
             rf.sim.rig = s.rig.parse().map_err(|e| anyhow!("{}: {e}", CaptureDir::INFO))?;
         }
         let done: HashSet<u32> = state.done_shots;
-        rep.stage("resume", format!("{} of {} shots already stored and verified", done.len(), info.plan.shots().len()));
+        let wanted = store::wanted_shots(&info.plan, cd.entries()).len();
+        rep.stage("resume", format!("{} of {wanted} shots already stored and verified", done.len()));
         (Some(cd), info, q, done)
     } else {
         let q = quality(&req).map_err(crate::usage)?;
@@ -622,12 +661,23 @@ pub async fn run(req: CaptureRequest, rep: &mut Reporter, cancel: watch::Receive
     // Every frame is stored; the capture is complete once its outputs are.
     cd.set_status(if job.is_some() { CaptureStatus::Captured } else { CaptureStatus::Complete })?;
     cd.sync()?;
+    let shorter = cd.entries().iter().filter(|e| matches!(e.frame, FrameKind::Shot(s) if s.exposure > 0)).count();
     report.frames = Some(report::FramesReport {
         committed: stats.committed,
         retakes: stats.retakes,
         moves: stats.moves,
         camera_discards: discards,
+        shorter_exposures: shorter as u64,
     });
+    if info.plan.bracket == setup::Bracket::Clipped && info.plan.exposures_us.len() > 1 {
+        rep.stage(
+            "capture",
+            format!(
+                "{shorter} shots at the bracket's shorter exposures, where the longer one clipped on the sample ({} lights)",
+                info.plan.n_lights()
+            ),
+        );
+    }
     if discards.error_flagged + discards.stale + discards.short > 0 {
         rep.warn(format!(
             "the camera delivered {} frames flagged as damaged, {} stale frames (exposed before their LED was lit) \
@@ -694,16 +744,33 @@ async fn capture_frames<K: Connector, C: Camera>(
             let off_at = tokio::time::Instant::now();
             for n in missing {
                 let f = camera.frame_after(clock::to_mono(off_at), Duration::from_secs(5)).await?;
-                tokio::task::block_in_place(|| cd.write_frame(FrameKind::Dark { exposure: e as u8, n }, &f, None))?;
+                tokio::task::block_in_place(|| {
+                    cd.write_frame(FrameKind::Dark { exposure: e as u8, n }, &f, None, None)
+                })?;
                 if let Some(job) = job {
                     job.send(FrameMsg::Dark { exposure: e as u8, frame: f }).await?;
                 }
                 rig.keepalive().await?;
             }
         }
-        let shots = plan.shots();
-        let todo: Vec<Shot> = shots.iter().filter(|s| !done.contains(&s.index)).copied().collect();
-        rep.stage("capture", format!("{} shots to take", todo.len()));
+        // An adaptive bracket's shorter exposures are decided as the
+        // capture goes (`Shooter::wants`), from the counts stored so far
+        // and those it takes.
+        let wanted = store::wanted_shots(&plan, cd.entries());
+        let todo: Vec<Shot> = plan.shots().into_iter().filter(|s| !done.contains(&s.index)).collect();
+        let at_most = wanted.iter().filter(|s| !done.contains(&s.index)).count();
+        rep.stage(
+            "capture",
+            match plan.bracket {
+                setup::Bracket::Every => format!("{at_most} shots to take"),
+                setup::Bracket::Clipped => format!(
+                    "{at_most} shots to take at most (a shorter exposure only where the longer one clipped on the \
+                     sample)"
+                ),
+            },
+        );
+        let window = points_window(&cd.info().geometry, &cd.info().grid);
+        let clipped = store::clipped_shots(cd.entries());
         let led_max_on = Duration::from_millis(rig.settings().led_max_on_ms as u64);
         let mut shooter = Shooter {
             camera,
@@ -713,13 +780,16 @@ async fn capture_frames<K: Connector, C: Camera>(
             exposure: None,
             rep,
             done: done.len() as u64,
-            total: shots.len() as u64,
+            total: (done.len() + at_most) as u64,
             started: Instant::now(),
             stop_after,
             taken: 0,
             led_max_on,
             discarded: 0,
             late: 0,
+            window,
+            clipped,
+            passed: HashSet::new(),
         };
         let stats = sequence::run(rig, &todo, &mut shooter).await?;
         let discards = shooter.camera.discards().await;

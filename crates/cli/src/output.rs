@@ -254,7 +254,7 @@ pub async fn refit(
     if torn {
         rep.warn("the manifest's last line is torn (the capture was interrupted); fitting what is complete");
     }
-    let planned = info.plan.shots().len();
+    let planned = store::wanted_shots(&info.plan, &entries);
     let stored: std::collections::HashSet<u32> = entries
         .iter()
         .filter_map(|e| match e.frame {
@@ -262,13 +262,15 @@ pub async fn refit(
             store::FrameKind::Dark { .. } => None,
         })
         .collect();
-    let missing = planned.saturating_sub(stored.len());
+    let missing = planned.iter().filter(|s| !stored.contains(&s.index)).count();
+    let planned = planned.len();
+    let held = planned - missing;
     if missing > 0 {
         let what = format!(
             "{} holds {} of its {planned} planned shots ({:.0}%)",
             dir.display(),
-            stored.len(),
-            100.0 * stored.len() as f64 / planned.max(1) as f64
+            held,
+            100.0 * held as f64 / planned.max(1) as f64
         );
         if !partial {
             return Err(crate::usage(anyhow::anyhow!(
@@ -291,7 +293,7 @@ pub async fn refit(
     let mut info = info;
     if missing > 0 {
         info.status = store::CaptureStatus::Interrupted;
-        report.partial = Some(report::PartialReport { planned_shots: planned, stored_shots: stored.len() });
+        report.partial = Some(report::PartialReport { planned_shots: planned, stored_shots: held });
     }
     let m = finish_fit(job, &info, &q, dir, rep, &mut report, stop).await?;
     report.peak_memory_mb = report::peak_memory_mb();

@@ -5,7 +5,8 @@
 //! |---|---|---|---|
 //! | gantry steps | 32 | 64 | 64 |
 //! | LEDs used | every other (20) | all 40 | all 40 |
-//! | exposures (HDR brackets) | 1 | 1 | 2 (x1, x1/8) |
+//! | exposures (HDR bracket) | x1, x1/8 | x1, x1/8 | x1, x1/8 |
+//! | shorter exposures taken (`setup::Bracket`) | where the longer clipped | the same | the same |
 //! | sample points (per side) | 48 | 96 | 128 |
 //! | simulated camera (pixels per side) | 128 | 224 | 320 |
 //! | NDF table | 16 x 48 | 32 x 96 | 32 x 96 |
@@ -29,6 +30,7 @@ use fit::analytic::AnalyticSettings;
 use fit::pooled::PoolSettings;
 use fit::synth::{SearchMode, SynthSettings};
 use serde::{Deserialize, Serialize};
+use setup::Bracket;
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Quality {
@@ -36,6 +38,10 @@ pub struct Quality {
     pub steps: u32,
     pub led_stride: u8,
     pub exposures_us: Vec<u32>,
+    /// Which shorter exposures are taken; captures made before adaptive
+    /// brackets took every one.
+    #[serde(default)]
+    pub bracket: Bracket,
     pub dark_frames: u32,
     pub grid: u32,
     pub sim_camera_px: u32,
@@ -60,7 +66,8 @@ pub fn preset(name: &str) -> Option<Quality> {
             name: name.into(),
             steps: 32,
             led_stride: 2,
-            exposures_us: vec![20_000],
+            exposures_us: vec![20_000, 2_500],
+            bracket: Bracket::Clipped,
             dark_frames: 4,
             grid: 48,
             sim_camera_px: 128,
@@ -95,7 +102,8 @@ pub fn preset(name: &str) -> Option<Quality> {
             name: name.into(),
             steps: 64,
             led_stride: 1,
-            exposures_us: vec![20_000],
+            exposures_us: vec![20_000, 2_500],
+            bracket: Bracket::Clipped,
             dark_frames: 8,
             grid: 96,
             sim_camera_px: 224,
@@ -116,6 +124,7 @@ pub fn preset(name: &str) -> Option<Quality> {
             steps: 64,
             led_stride: 1,
             exposures_us: vec![20_000, 2_500],
+            bracket: Bracket::Clipped,
             dark_frames: 8,
             grid: 128,
             sim_camera_px: 320,
@@ -143,6 +152,8 @@ pub struct Overrides {
     pub steps: Option<u32>,
     pub led_stride: Option<u8>,
     pub hdr: Option<u32>,
+    #[serde(default)]
+    pub bracket: Option<Bracket>,
     pub grid: Option<u32>,
     pub camera_px: Option<u32>,
     pub ndf_theta: Option<u32>,
@@ -182,6 +193,9 @@ impl Quality {
         if let Some(v) = o.hdr {
             ensure((1..=4).contains(&v), format!("--hdr {v}: use 1..=4 brackets"))?;
             self.exposures_us = (0..v).map(|k| 20_000 >> (3 * k)).collect();
+        }
+        if let Some(b) = o.bracket {
+            self.bracket = b;
         }
         if let Some(v) = o.grid {
             ensure((4..=1024).contains(&v), format!("--grid {v}: use 4..=1024 points per side"))?;

@@ -58,6 +58,7 @@ pub fn white_plan(g: &setup::RigGeometry, exposure_us: u32, gain: f32) -> setup:
         exposures_us: vec![exposure_us],
         gain,
         dark_frames: 0,
+        bracket: setup::Bracket::Every,
     }
 }
 

@@ -184,6 +184,22 @@ impl Frame {
         ((1u32 << self.bit_depth.min(16)) - 1) as u16
     }
 
+    /// Pixels in the window `x0..x1` x `y0..y1` (clamped to the frame)
+    /// with any sample at [`Frame::max_value`]: what a capture looks at to
+    /// decide whether a shorter exposure is needed.
+    pub fn clipped_in(&self, x0: u32, y0: u32, x1: u32, y1: u32) -> u32 {
+        let max = self.max_value();
+        let per = self.layout.samples_per_pixel();
+        let (x1, y1) = (x1.min(self.width), y1.min(self.height));
+        let mut n = 0;
+        for y in y0.min(y1)..y1 {
+            let row = (y * self.width) as usize * per;
+            let px = &self.data[row + x0.min(x1) as usize * per..row + x1 as usize * per];
+            n += px.chunks_exact(per).filter(|p| p.iter().any(|&v| v >= max)).count() as u32;
+        }
+        n
+    }
+
     /// Linear RGB planes (bilinear demosaicing for Bayer data; replicated
     /// for mono) and a per-pixel clipped flag (set if the pixel or any
     /// sensor pixel that contributed to it reached [`Frame::max_value`]).
@@ -402,6 +418,11 @@ mod tests {
         let img = f.to_rgb();
         assert!(img.clipped[5] && img.clipped[0] && img.clipped[10]);
         assert!(!img.clipped[15]);
+        // Counted in the raw frame: the one clipped sensor pixel, inside
+        // a window and not outside it.
+        assert_eq!(f.clipped_in(0, 0, 4, 4), 1);
+        assert_eq!(f.clipped_in(0, 0, 100, 100), 1);
+        assert_eq!(f.clipped_in(2, 2, 4, 4), 0);
     }
 }
 

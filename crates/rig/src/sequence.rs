@@ -11,6 +11,12 @@
 //! committed. Otherwise it is discarded and the shot is taken again. So a
 //! reboot mid-capture never leaves a silent gap and never assigns a frame
 //! to the wrong LED; it costs at most one retake per recovery.
+//!
+//! Every gantry position is approached moving toward `+x`, the plan's
+//! direction: a move toward `-x` (a retake after the sequence moved on)
+//! first goes [`APPROACH_UM`] past its target, or home at the travel's
+//! end. So the carriage's backlash lies the same way for every shot, and a
+//! retake sees the light from where the first take would have.
 
 use std::future::Future;
 
@@ -33,12 +39,38 @@ pub trait Exposer {
     /// the camera was late); the exposer bounds how often it asks.
     fn expose(&mut self, shot: &Shot, lit_at: Instant)
     -> impl Future<Output = Result<Option<Self::Item>, Self::Error>>;
+    /// Whether `shot` is to be taken, asked just before it would be (an
+    /// adaptive bracket's shorter exposure depends on what the longer one
+    /// saw: `setup::CapturePlan::wants`). A shot not wanted is passed over.
+    fn wants(&mut self, _shot: &Shot) -> bool {
+        true
+    }
     /// An exposure the rig confirmed.
     fn commit(&mut self, shot: &Shot, item: Self::Item) -> impl Future<Output = Result<(), Self::Error>>;
     /// An exposure discarded because the rig recovered while it was taken.
     fn discarded(&mut self, shot: &Shot) {
         tracing::info!(step = shot.step, led = shot.led, "retaking a shot: the rig recovered while it was exposed");
     }
+}
+
+/// How far past its target a move toward `-x` goes before it turns back:
+/// more than any lead screw's backlash (the simulated rig's is at most
+/// 0.1 mm, RIGFILE.md).
+pub const APPROACH_UM: i32 = 1_000;
+
+/// Move to `to` arriving toward `+x` (module docs). Where no move can pass
+/// the target (within [`APPROACH_UM`] of the travel's low end), the
+/// carriage is homed first: the home switch lies below the travel.
+async fn approach<C: Connector>(rig: &mut Rig<C>, to: i32) -> Result<(), RigError> {
+    if rig.position_um().is_none_or(|from| to < from) {
+        let floor = rig.info().map_or(i32::MIN, |i| i.travel_min_um);
+        match to.checked_sub(APPROACH_UM) {
+            Some(before) if before >= floor => rig.move_to(before).await.map(|_| ())?,
+            _ => rig.home().await.map(|_| ())?,
+        }
+    }
+    rig.move_to(to).await?;
+    Ok(())
 }
 
 /// Counters of a sequence run.
@@ -74,38 +106,21 @@ async fn run_inner<C: Connector, E: Exposer>(
     let mut at: Option<i32> = None;
     let mut epoch_at_move = rig.epoch();
     let mut i = 0;
-    while i < shots.len() {
-        let shot = shots[i];
-        if at != Some(shot.position_um) || rig.epoch() != epoch_at_move {
-            rig.all_off().await?;
-            rig.move_to(shot.position_um).await?;
-            stats.moves += 1;
-            at = Some(shot.position_um);
-            epoch_at_move = rig.epoch();
-        }
-        let lit_at = rig.led_on(shot.led).await?;
-        if let Some((k, item, e)) = pending.take() {
-            if rig.epoch() == e {
-                exposer.commit(&shots[k], item).await?;
-                stats.committed += 1;
-            } else {
-                exposer.discarded(&shots[k]);
-                stats.retakes += 1;
-                at = None;
-                i = k;
+    loop {
+        while i < shots.len() {
+            let shot = shots[i];
+            if !exposer.wants(&shot) {
+                i += 1;
                 continue;
             }
-        }
-        let e = rig.epoch();
-        let Some(item) = exposer.expose(&shot, lit_at).await? else {
-            // Unusable: light it again (the next pass re-fires the LED).
-            stats.retakes += 1;
-            continue;
-        };
-        pending = Some((i, item, e));
-        i += 1;
-        if i == shots.len() {
-            rig.all_off().await?;
+            if at != Some(shot.position_um) || rig.epoch() != epoch_at_move {
+                rig.all_off().await?;
+                approach(rig, shot.position_um).await?;
+                stats.moves += 1;
+                at = Some(shot.position_um);
+                epoch_at_move = rig.epoch();
+            }
+            let lit_at = rig.led_on(shot.led).await?;
             if let Some((k, item, e)) = pending.take() {
                 if rig.epoch() == e {
                     exposer.commit(&shots[k], item).await?;
@@ -115,9 +130,30 @@ async fn run_inner<C: Connector, E: Exposer>(
                     stats.retakes += 1;
                     at = None;
                     i = k;
+                    continue;
                 }
             }
+            let e = rig.epoch();
+            let Some(item) = exposer.expose(&shot, lit_at).await? else {
+                // Unusable: light it again (the next pass re-fires the LED).
+                stats.retakes += 1;
+                continue;
+            };
+            pending = Some((i, item, e));
+            i += 1;
         }
+        // The last exposure is confirmed by switching everything off.
+        let Some((k, item, e)) = pending.take() else { break };
+        rig.all_off().await?;
+        if rig.epoch() == e {
+            exposer.commit(&shots[k], item).await?;
+            stats.committed += 1;
+            break;
+        }
+        exposer.discarded(&shots[k]);
+        stats.retakes += 1;
+        at = None;
+        i = k;
     }
     Ok(stats)
 }

@@ -18,6 +18,6 @@ pub use camera::CameraModel;
 pub use geometry::{
     Gantry, LedBar, LedEmission, PointGrid, ReferencePatch, RigGeometry, SampleArea, trapezoid_seconds,
 };
-pub use plan::{CapturePlan, PlanError, PlannedShot};
+pub use plan::{Bracket, CapturePlan, PlanError, PlannedShot};
 pub use target::CheckerTarget;
 pub use valid::Invalid;

@@ -23,6 +23,33 @@ pub struct CapturePlan {
     pub gain: f32,
     /// Dark frames (all LEDs off) taken per exposure before the shots.
     pub dark_frames: u32,
+    /// Which of the bracket's shorter exposures are taken (plans written
+    /// before adaptive brackets took every one).
+    #[serde(default)]
+    pub bracket: Bracket,
+}
+
+/// Which shots of an HDR bracket a capture takes.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Bracket {
+    /// Every exposure of every light.
+    #[default]
+    Every,
+    /// A light's next shorter exposure only where its longer one clipped
+    /// on the sample (module docs).
+    Clipped,
+}
+
+impl std::str::FromStr for Bracket {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "every" => Ok(Self::Every),
+            "clipped" => Ok(Self::Clipped),
+            _ => Err(format!("unknown bracket '{s}': use every or clipped")),
+        }
+    }
 }
 
 #[derive(Debug, Error, PartialEq)]
@@ -53,11 +80,16 @@ impl CapturePlan {
     /// The least time the rig can take this plan in, seconds: every frame
     /// (dark frames and shots) at the camera's frame period `1 / fps` (or
     /// its exposure, if longer), and every move between steps with its
-    /// settling. Homing and calibration are outside it.
+    /// settling. Homing and calibration are outside it, and so are the
+    /// shorter exposures of an adaptive bracket, which depend on the sample.
     pub fn physical_seconds(&self, g: &RigGeometry, fps: f32) -> f64 {
         let period = 1.0 / (fps as f64).max(1e-9);
         let frame = |us: u32| period.max(us as f64 * 1e-6);
-        let per_light: f64 = self.exposures_us.iter().map(|&us| frame(us)).sum();
+        let bracketed = match self.bracket {
+            Bracket::Every => self.exposures_us.len(),
+            Bracket::Clipped => 1,
+        };
+        let per_light: f64 = self.exposures_us.iter().take(bracketed).map(|&us| frame(us)).sum();
         let darks: f64 = self.exposures_us.iter().map(|&us| self.dark_frames as f64 * frame(us)).sum();
         let step_mm = if self.steps > 1 { (self.last_mm - self.first_mm) / (self.steps - 1) as f32 } else { 0.0 };
         let moves =
@@ -76,6 +108,7 @@ impl CapturePlan {
             exposures_us: vec![20_000],
             gain: 1.0,
             dark_frames: 8,
+            bracket: Bracket::Every,
         }
     }
 
@@ -137,6 +170,23 @@ impl CapturePlan {
         }
         v
     }
+
+    /// The shot of the same light at the next longer exposure, by index
+    /// (`None` for a light's first, longest exposure).
+    pub fn longer(&self, shot: &PlannedShot) -> Option<u32> {
+        (shot.exposure > 0).then(|| shot.index - self.leds.len() as u32)
+    }
+
+    /// Whether `shot` is to be taken, given whether each shot (by index)
+    /// clipped on the sample: `Some(true)` or `Some(false)` once known,
+    /// `None` before it is taken. A shot whose longer exposure is not yet
+    /// known to be clean is wanted.
+    pub fn wants(&self, shot: &PlannedShot, clipped: impl Fn(u32) -> Option<bool>) -> bool {
+        match (self.bracket, self.longer(shot)) {
+            (Bracket::Every, _) | (_, None) => true,
+            (Bracket::Clipped, Some(k)) => clipped(k).unwrap_or(true),
+        }
+    }
 }
 
 #[cfg(test)]
@@ -173,6 +223,7 @@ mod tests {
             exposures_us: vec![20_000],
             gain: 1.0,
             dark_frames: 3,
+            bracket: Bracket::Every,
         };
         // 3 darks + 4 shots at 0.1 s; one 240 mm move: 2.4 s + 0.1 s of
         // ramps, then 0.03 s settling.
@@ -184,5 +235,35 @@ mod tests {
         // An exposure longer than the frame period sets the pace.
         p.exposures_us = vec![250_000];
         assert!((p.physical_seconds(&g, 10.0) - (7.0 * 0.25 + 2.0 * 0.004f64.sqrt() + 0.03)).abs() < 1e-9);
+        // An adaptive bracket's shorter exposures are not counted, but
+        // their dark frames are.
+        p.exposures_us = vec![250_000, 200_000];
+        p.bracket = Bracket::Clipped;
+        assert!((p.physical_seconds(&g, 10.0) - (7.0 * 0.25 + 0.6 + 2.0 * 0.004f64.sqrt() + 0.03)).abs() < 1e-9);
+    }
+
+    /// An adaptive bracket wants a light's shorter exposure exactly when
+    /// its longer one clipped or is not known yet; a whole bracket wants
+    /// every shot.
+    #[test]
+    fn an_adaptive_bracket_follows_the_longer_exposure() {
+        let g = RigGeometry::default();
+        let mut p = CapturePlan::full(&g);
+        p.steps = 2;
+        p.leds = vec![3, 7];
+        p.exposures_us = vec![20_000, 2_500, 312];
+        let shots = p.shots();
+        // Step 0: LEDs 3 and 7 at each exposure in turn.
+        assert_eq!(p.longer(&shots[0]), None);
+        assert_eq!(p.longer(&shots[2]), Some(0));
+        assert_eq!(p.longer(&shots[5]), Some(3));
+        assert_eq!((shots[5].led, shots[3].led, shots[5].exposure), (7, 7, 2));
+        // Shot 0 (LED 3, longest) clipped, shot 1 (LED 7) did not, shot 2
+        // (LED 3 shorter) did not, shot 3 is not known.
+        let seen = |k: u32| [Some(true), Some(false), Some(false), None].get(k as usize).copied().flatten();
+        let wanted = |p: &CapturePlan| shots.iter().take(6).map(|s| p.wants(s, seen)).collect::<Vec<_>>();
+        assert_eq!(wanted(&p), vec![true; 6]);
+        p.bracket = Bracket::Clipped;
+        assert_eq!(wanted(&p), vec![true, true, true, false, false, true]);
     }
 }

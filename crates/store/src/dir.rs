@@ -315,6 +315,7 @@ impl CaptureDir {
         kind: FrameKind,
         f: &Frame,
         lit_at: Option<MonoNs>,
+        clipped: Option<u32>,
     ) -> Result<ManifestEntry, StoreError> {
         let png = encode_png(f).map_err(|e| StoreError::BadFrame { path: kind.file_name(), reason: e })?;
         let rel = format!("{}/{}", Self::FRAMES, kind.file_name());
@@ -331,6 +332,7 @@ impl CaptureDir {
             bit_depth: f.bit_depth,
             meta: f.meta,
             lit_at_ns: lit_at.map(|m| m.0),
+            clipped,
         };
         let mut line = serde_json::to_string(&entry).map_err(|e| StoreError::Io {
             what: "encoding",

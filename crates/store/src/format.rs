@@ -117,4 +117,31 @@ pub struct ManifestEntry {
     pub meta: FrameMeta,
     /// When the LED was known to be lit (monotonic ns), for shots.
     pub lit_at_ns: Option<u64>,
+    /// A shot's pixels clipped on the sample, where the capture counted
+    /// them (its bracket's shorter exposure follows from it:
+    /// [`setup::CapturePlan::wants`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub clipped: Option<u32>,
+}
+
+/// The shots a complete capture under `plan` holds, given what the stored
+/// frames `entries` recorded: every shot of a whole bracket; of an adaptive
+/// one, the shorter exposures of the lights whose longer exposure clipped
+/// or is not stored yet.
+pub fn wanted_shots(plan: &setup::CapturePlan, entries: &[ManifestEntry]) -> Vec<setup::PlannedShot> {
+    let clipped = clipped_shots(entries);
+    plan.shots().into_iter().filter(|s| plan.wants(s, |k| clipped.get(&k).copied())).collect()
+}
+
+/// Whether each stored shot (by plan index) clipped on the sample; a frame
+/// stored without a count counts as clipped, so that what follows from it
+/// is taken rather than guessed away.
+pub fn clipped_shots(entries: &[ManifestEntry]) -> std::collections::HashMap<u32, bool> {
+    entries
+        .iter()
+        .filter_map(|e| match e.frame {
+            FrameKind::Shot(s) => Some((s.index, e.clipped.is_none_or(|n| n > 0))),
+            FrameKind::Dark { .. } => None,
+        })
+        .collect()
 }

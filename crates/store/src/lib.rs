@@ -23,4 +23,7 @@ mod format;
 
 pub use calibrations::CalibrationStore;
 pub use dir::{CaptureDir, DirLock, ResumeState, StoreError};
-pub use format::{CAPTURE_FORMAT_VERSION, CaptureInfo, CaptureStatus, FrameKind, ManifestEntry, SensorInfo, SimInfo};
+pub use format::{
+    CAPTURE_FORMAT_VERSION, CaptureInfo, CaptureStatus, FrameKind, ManifestEntry, SensorInfo, SimInfo, clipped_shots,
+    wanted_shots,
+};

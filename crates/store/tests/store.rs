@@ -54,7 +54,7 @@ fn frames_round_trip_losslessly() {
     let root = d.path().join("cap");
     let mut c = CaptureDir::create(&root, info()).unwrap();
     let f = frame(5);
-    let e = c.write_frame(shot(0), &f, Some(MonoNs(900))).unwrap();
+    let e = c.write_frame(shot(0), &f, Some(MonoNs(900)), Some(0)).unwrap();
     let back = CaptureDir::read_frame(&root, &e).unwrap();
     assert_eq!(back, f);
 }
@@ -80,7 +80,7 @@ fn resume_keeps_verified_frames_and_drops_damaged_ones() {
     let mut c = CaptureDir::create(&root, info()).unwrap();
     let mut entries = Vec::new();
     for i in 0..5 {
-        entries.push(c.write_frame(shot(i), &frame(i as u16), None).unwrap());
+        entries.push(c.write_frame(shot(i), &frame(i as u16), None, None).unwrap());
     }
     drop(c);
     // A crash: a torn manifest line, a damaged frame, a leftover temp file.
@@ -115,4 +115,29 @@ fn a_corrupted_capture_json_is_a_clear_error() {
     fs::write(root.join(CaptureDir::INFO), b"{ not json").unwrap();
     let e = CaptureDir::resume(&root).unwrap_err();
     assert!(matches!(e, StoreError::BadCaptureJson { .. }), "{e}");
+}
+
+/// An adaptive bracket's complete capture holds a light's shorter exposure
+/// only where its longer one recorded clipped pixels, or recorded no count
+/// (a frame from before the counts, which decides nothing).
+#[test]
+fn the_wanted_shots_follow_the_recorded_clipping() {
+    let d = tempfile::tempdir().unwrap();
+    let mut i = info();
+    i.plan.steps = 1;
+    i.plan.leds = vec![0, 1, 2];
+    i.plan.exposures_us = vec![20_000, 2_500];
+    i.plan.bracket = setup::Bracket::Clipped;
+    let plan = i.plan.clone();
+    let shots = plan.shots();
+    let mut c = CaptureDir::create(&d.path().join("cap"), i).unwrap();
+    let indices = |v: Vec<setup::PlannedShot>| v.iter().map(|s| s.index).collect::<Vec<_>>();
+    assert_eq!(indices(store::wanted_shots(&plan, c.entries())), vec![0, 1, 2, 3, 4, 5]);
+    for (k, clipped) in [(0, Some(12)), (1, Some(0)), (2, None)] {
+        c.write_frame(FrameKind::Shot(shots[k]), &frame(k as u16), None, clipped).unwrap();
+    }
+    assert_eq!(indices(store::wanted_shots(&plan, c.entries())), vec![0, 1, 2, 3, 5]);
+    let mut every = plan.clone();
+    every.bracket = setup::Bracket::Every;
+    assert_eq!(store::wanted_shots(&every, c.entries()).len(), 6);
 }

@@ -59,6 +59,10 @@ struct Args {
     /// HDR brackets per LED, 8x apart (overrides the preset).
     #[arg(long)]
     hdr: Option<u32>,
+    /// Which shorter exposures of the bracket to take: `clipped` (only for a light whose longer
+    /// exposure clipped on the sample; the presets' choice) or `every` (overrides the preset).
+    #[arg(long, value_name = "WHICH")]
+    bracket: Option<setup::Bracket>,
     /// Sample points per side of the fitted material (overrides the preset).
     #[arg(long)]
     grid: Option<u32>,
@@ -151,6 +155,7 @@ fn main() -> ExitCode {
                 steps: args.steps,
                 led_stride: args.led_stride,
                 hdr: args.hdr,
+                bracket: args.bracket,
                 grid: args.grid,
                 camera_px: args.camera_px,
                 ndf_theta: args.ndf_theta,

@@ -520,6 +520,13 @@ impl<C: Connector> Rig<C> {
         }
     }
 
+    /// Where the carriage was last reported (after a move, a homing or a
+    /// recovery's return), in the controller's coordinates; `None` before
+    /// the first.
+    pub fn position_um(&self) -> Option<i32> {
+        self.position_um
+    }
+
     /// Home the gantry.
     pub async fn home(&mut self) -> Result<i32, RigError> {
         self.target_um = None;
