@@ -162,8 +162,9 @@ fn stored_shots(dir: &Path) -> std::collections::BTreeMap<(u64, u64, u64), u64> 
 /// An adaptive bracket (the presets' `clipped`) on brushed metal, whose
 /// highlights clip at the long exposure: a light has its short exposure
 /// exactly where its long one clipped on the sample, some lights need it
-/// and some do not, and a capture stopped in the middle resumes to the
-/// same frames and the same material.
+/// and some do not, the material is the one the whole bracket gives (the
+/// fit reads a shorter frame only where the longer clipped), and a capture
+/// stopped in the middle resumes to the same frames and the same material.
 #[test]
 fn an_adaptive_bracket_takes_short_exposures_where_the_long_ones_clipped() {
     let lab = Lab::new();
@@ -180,6 +181,9 @@ fn an_adaptive_bracket_takes_short_exposures_where_the_long_ones_clipped() {
         );
     }
     assert!(short > 0 && short < long.len(), "{short} short exposures for {} lights", long.len());
+    assert_ok(&lab.capture("brushed-metal", "every", &[&NO_DRIFT[..], &["--bracket", "every"]].concat()), "every");
+    assert_eq!(stored_shots(&lab.path("every")).len(), 2 * long.len());
+    same_files(&lab.path("clean/material"), &lab.path("every/material"), MATERIAL_FILES);
     let o = lab.capture("brushed-metal", "cut", &[&NO_DRIFT[..], &["--stop-after", "150"]].concat());
     assert_eq!(o.status.code(), Some(130), "{}", stderr(&o));
     let o = lab.cmd(CAPTURE).arg("--resume").arg(lab.path("cut")).output().unwrap();
