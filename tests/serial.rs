@@ -109,13 +109,16 @@ fn firings(world: &World) -> (Vec<Firing>, bool) {
     (out, overlap)
 }
 
-async fn open(sim: &SimMcu) -> Rig<SerialConnector> {
+async fn try_open(sim: &SimMcu) -> Result<Rig<SerialConnector>, RigError> {
     let locator = PortLocator::Path { path: sim.link_path.clone().unwrap() };
-    let mut s = settings();
-    s.led_max_on_ms = 1000;
-    let mut rig = Rig::open(SerialConnector { locator, baud: 1_000_000 }, s).await.expect("open rig");
-    rig.home().await.expect("home");
-    rig
+    let s = RigSettings { led_max_on_ms: 1000, ..settings() };
+    let mut rig = Rig::open(SerialConnector { locator, baud: 1_000_000 }, s).await?;
+    rig.home().await?;
+    Ok(rig)
+}
+
+async fn open(sim: &SimMcu) -> Rig<SerialConnector> {
+    try_open(sim).await.expect("open and home the rig")
 }
 
 fn link_path(dir: &tempfile::TempDir) -> PathBuf {
@@ -276,14 +279,9 @@ async fn wherever_a_reboot_lands_every_shot_is_approached_from_the_same_side() {
         let faults = FaultSpec::parse(&format!("reboot-at={at}")).unwrap();
         let world = World::new();
         let sim = SimMcu::spawn_pty(fast_mcu(), faults, world.clone(), Some(link_path(&dir))).await.unwrap();
-        let locator = PortLocator::Path { path: sim.link_path.clone().unwrap() };
-        let s = RigSettings { led_max_on_ms: 1000, ..settings() };
         // A reboot while the rig is opened and homed fails the opening:
         // the sweep is over the sequence's commands.
-        let Ok(mut rig) = Rig::open(SerialConnector { locator, baud: 1_000_000 }, s).await else { continue };
-        if rig.home().await.is_err() {
-            continue;
-        }
+        let Ok(mut rig) = try_open(&sim).await else { continue };
         let mut ex =
             Dwell { dwell: Duration::from_micros(100), committed: Vec::new(), discarded: 0, unwanted: Vec::new() };
         sequence::run(&mut rig, &shots, &mut ex).await.unwrap();

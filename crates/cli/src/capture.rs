@@ -756,9 +756,9 @@ async fn capture_frames<K: Connector, C: Camera>(
         // An adaptive bracket's shorter exposures are decided as the
         // capture goes (`Shooter::wants`), from the counts stored so far
         // and those it takes.
-        let wanted = store::wanted_shots(&plan, cd.entries());
+        let clipped = store::clipped_shots(cd.entries());
         let todo: Vec<Shot> = plan.shots().into_iter().filter(|s| !done.contains(&s.index)).collect();
-        let at_most = wanted.iter().filter(|s| !done.contains(&s.index)).count();
+        let at_most = todo.iter().filter(|s| plan.wants(s, |k| clipped.get(&k).copied())).count();
         rep.stage(
             "capture",
             match plan.bracket {
@@ -770,7 +770,6 @@ async fn capture_frames<K: Connector, C: Camera>(
             },
         );
         let window = points_window(&cd.info().geometry, &cd.info().grid);
-        let clipped = store::clipped_shots(cd.entries());
         let led_max_on = Duration::from_millis(rig.settings().led_max_on_ms as u64);
         let mut shooter = Shooter {
             camera,

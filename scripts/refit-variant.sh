@@ -1,0 +1,61 @@
+#!/usr/bin/env bash
+# Refit a stored capture with one of its inputs changed, into a new
+# directory, and score it (`refl eval --json --px 64`, as eval-all.sh does):
+# which stage or which frames a figure comes from.
+#
+#   bash scripts/refit-variant.sh [--bin DIR] [--data DIR]
+#                                 [--drop-shorter] [--no-pooling] CAPTURE OUT
+#
+# --drop-shorter leaves out the frames of an HDR bracket's shorter
+# exposures (a partial fit: the capture as if it had one exposure);
+# --no-pooling fits every point's NDF from its own samples (the capture's
+# settings without `pool`). The frames are linked, not copied; CAPTURE is
+# not changed. --data names the data directory holding the capture's
+# calibrations (default: CAPTURE's parent's `data`, where eval-all.sh puts
+# it). OUT/eval.json is the score, OUT.log the log.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+bin=""
+data=""
+drop_shorter=0
+no_pooling=0
+while [ $# -gt 0 ]; do
+  case "$1" in
+    --bin) bin="$2"; shift 2 ;;
+    --data) data="$2"; shift 2 ;;
+    --drop-shorter) drop_shorter=1; shift ;;
+    --no-pooling) no_pooling=1; shift ;;
+    *) break ;;
+  esac
+done
+[ $# -eq 2 ] || { sed -n 2,16p "$0" >&2; exit 2; }
+src="$(cd "$1" && pwd)"
+. scripts/common.sh
+release_bins
+out="$2"
+rm -rf "$out"
+out="$(absolute_dir "$out")"
+export REFLECTOMETER_DATA="${data:-$(dirname "$src")/data}"
+ln -s "$src/frames" "$out/frames"
+python3 - "$src" "$out" "$drop_shorter" "$no_pooling" <<'PY'
+import json, sys
+src, out, drop_shorter, no_pooling = sys.argv[1], sys.argv[2], sys.argv[3] == "1", sys.argv[4] == "1"
+info = json.load(open(f"{src}/capture.json"))
+if no_pooling:
+    info["settings"]["pool"] = None
+json.dump(info, open(f"{out}/capture.json", "w"), indent=2)
+dropped = 0
+with open(f"{out}/manifest.jsonl", "w") as m:
+    for line in open(f"{src}/manifest.jsonl"):
+        f = json.loads(line)["frame"]
+        if drop_shorter and f["kind"] == "shot" and f["exposure"] > 0:
+            dropped += 1
+            continue
+        m.write(line)
+print(f"refit-variant: {dropped} shorter-exposure frames left out", file=sys.stderr)
+PY
+partial=()
+[ "$drop_shorter" -eq 1 ] && partial=(--partial)
+"$bin/refl" fit "${partial[@]}" "$out" >"$out.log" 2>&1
+"$bin/refl" eval "$out" --json --px 64 >"$out/eval.json" 2>>"$out.log"
+echo "refit-variant: $out/eval.json" >&2
