@@ -1,7 +1,9 @@
 //! Pooled estimation (`fit::pooled`) on simulated captures: a homogeneous
 //! surface is one material and is recovered as one, better than its points
-//! are alone; a sample of two materials forced into one cluster keeps the
-//! points the pooled table cannot explain on their own tables.
+//! are alone, and is not divided by how each point happened to be sampled;
+//! a sample of two materials is divided into them; forced into one
+//! cluster, it keeps the points the pooled table cannot explain on their
+//! own tables.
 
 #[path = "support/simfit.rs"]
 mod simfit;
@@ -58,6 +60,24 @@ fn a_homogeneous_surface_is_recovered_as_one_material_better_than_by_any_point()
     assert!(pooled < own, "pooled NDF error {pooled:.4}, per point {own:.4}");
 }
 
+/// Allowed eight clusters, the homogeneous surface is still one: k-means
+/// would divide it (by each point's sampling, which its own table's blur
+/// carries), but the halves' tables do not explain their samples better
+/// than one table by more than the second table's parameters, so the
+/// split is refused and every point is pooled.
+#[test]
+fn a_homogeneous_surface_is_not_divided_by_how_its_points_were_sampled() {
+    let s = scenario(sim::materials::builtin("ward").unwrap());
+    let f = run(&s, FitSettings::default());
+    let mut maps = f.maps.clone();
+    let op = MaskingOperator::new(f.settings.grid);
+    let stats = pool(&f.ctx, &f.store, &mut maps, &f.settings, &PoolSettings { clusters: 8, seed: 1 }, &op, None);
+    let specular = (0..maps.len()).filter(|&p| maps.flags[p] & point_flag::NO_SPECULAR == 0).count();
+    assert_eq!(stats.clusters, 1, "{stats:?}");
+    assert!(stats.splits_refused >= 1, "{stats:?}");
+    assert_eq!(stats.pooled, specular, "{stats:?}");
+}
+
 /// Two materials side by side: the anisotropic Ward surface for x < 0 and
 /// brushed metal's far sharper lobe for x >= 0.
 struct Halves {
@@ -72,6 +92,22 @@ impl SvBrdf for Halves {
     fn at(&self, p: Vec2) -> PointMaterial {
         if p.x < 0.0 { self.left.at(p) } else { self.right.at(p) }
     }
+}
+
+/// Per half (x < 0, x > 0; the points within 5 mm of the seam left out):
+/// the points with specular, and how many of them took a pooled table.
+fn per_half(f: &simfit::Fitted, maps: &fit::PointMaps) -> [[usize; 2]; 2] {
+    let mut count = [[0usize; 2]; 2];
+    for p in 0..maps.len() {
+        let x = f.ctx.positions[p].x;
+        if x.abs() < 5.0 || maps.flags[p] & point_flag::NO_SPECULAR != 0 {
+            continue;
+        }
+        let side = usize::from(x > 0.0);
+        count[side][0] += 1;
+        count[side][1] += usize::from(maps.flags[p] & point_flag::POOLED != 0);
+    }
+    count
 }
 
 /// Forced into one cluster, the pooled table is one half's lobe (the
@@ -91,16 +127,7 @@ fn points_that_differ_from_their_cluster_beyond_the_noise_keep_their_own_tables(
     let op = MaskingOperator::new(f.settings.grid);
     pool(&f.ctx, &f.store, &mut maps, &f.settings, &PoolSettings { clusters: 1, seed: 1 }, &op, None);
     // Specular points and those that kept their own table, per half.
-    let mut count = [[0usize; 2]; 2];
-    for p in 0..maps.len() {
-        let x = f.ctx.positions[p].x;
-        if x.abs() < 5.0 || maps.flags[p] & point_flag::NO_SPECULAR != 0 {
-            continue;
-        }
-        let side = usize::from(x > 0.0);
-        count[side][0] += 1;
-        count[side][1] += usize::from(maps.flags[p] & point_flag::POOLED == 0);
-    }
+    let count = per_half(&f, &maps).map(|[n, pooled]| [n, n - pooled]);
     eprintln!(
         "ward: {} of {} kept their own; brushed metal: {} of {}",
         count[0][1], count[0][0], count[1][1], count[1][0]
@@ -110,4 +137,42 @@ fn points_that_differ_from_their_cluster_beyond_the_noise_keep_their_own_tables(
     // half, nearly all of its points, must refuse it.
     let refused = |c: [usize; 2]| c[1] * 10 >= c[0] * 9;
     assert!(refused(count[0]) || refused(count[1]), "{count:?}");
+}
+
+/// The Ward surface's lobe turned by 90 degrees: a second material, as
+/// homogeneous as the first.
+struct TurnedWard;
+
+impl SvBrdf for TurnedWard {
+    fn name(&self) -> &str {
+        "turned-ward"
+    }
+    fn at(&self, _p: Vec2) -> PointMaterial {
+        let ndf = Arc::new(brdf::ndf::Beckmann::new(0.1, 0.3, 120f32.to_radians()));
+        PointMaterial::microfacet(
+            glam::Vec3::splat(0.2),
+            glam::Vec3::ONE,
+            ndf,
+            brdf::fresnel::Fresnel::Dielectric { eta: 1.5 },
+        )
+    }
+}
+
+/// Two homogeneous materials side by side, allowed eight clusters: the
+/// data divide them into two (the split explains the samples far beyond a
+/// table's cost; splitting either again is refused, as for one material
+/// above), and nearly every point of both halves takes its cluster's table
+/// instead of refusing a blend as in the test above.
+#[test]
+fn two_materials_are_divided_by_the_data_into_two_and_each_is_pooled() {
+    let halves = Halves { left: sim::materials::builtin("ward").unwrap(), right: Arc::new(TurnedWard) };
+    let s = scenario(Arc::new(halves));
+    let f = run(&s, FitSettings::default());
+    let mut maps = f.maps.clone();
+    let op = MaskingOperator::new(f.settings.grid);
+    let stats = pool(&f.ctx, &f.store, &mut maps, &f.settings, &PoolSettings { clusters: 8, seed: 1 }, &op, None);
+    let count = per_half(&f, &maps);
+    eprintln!("{stats:?}; ward: {} of {} pooled; turned: {} of {}", count[0][1], count[0][0], count[1][1], count[1][0]);
+    assert_eq!(stats.clusters, 2, "{stats:?}");
+    assert!(count.iter().all(|c| c[0] > 0 && c[1] * 10 >= c[0] * 9), "{count:?}");
 }

@@ -18,7 +18,7 @@
 //! | synthesis passes | 1 | 2 | 2 |
 //! | analytic fits | Ward iso/aniso, Cook-Torrance, GGX and Beckmann aniso | all nine | all nine |
 //! | analytic fit clusters (shape parameters shared) | 16 | 32 | 64 |
-//! | pooled NDF clusters (materials, `fit::pooled`) | 16 | 32 | 64 |
+//! | pooled NDF clusters, at most (the data choose how many, `fit::pooled`) | 16 | 32 | 64 |
 //! | model choice (`fit::select`) scored on | every 8th step, held out of a second fit | the same | the same |
 //!
 //! The figures behind these choices are in `refl tradeoff` (see the README).

@@ -44,6 +44,7 @@
 use brdf::fresnel;
 use brdf::ndf::{Coverage, MaskingOperator, MaskingTable, NdfGrid, NdfTable};
 use glam::Vec3;
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::diffuse::lower_mode;
@@ -276,16 +277,79 @@ pub(crate) fn corners(grid: NdfGrid, h: Vec3) -> [(u32, f32); 4] {
     grid.bilinear(h).weights(grid.n_phi as usize).map(|(c, w)| (c as u32, w))
 }
 
-/// The kernel layout of a splat, fixed while its values change: each
-/// sample's kernel cells (`cells[offsets[k]..offsets[k + 1]]`) and its
-/// bilinear corners, and the region's push-pull confidence and extent.
+/// The kernel layout of a splat, fixed while its values change: where each
+/// sample's kernel lies, and the region's push-pull confidence and extent.
 pub(crate) struct SplatLayout<'a> {
     pub(crate) grid: NdfGrid,
-    pub(crate) cells: &'a [(u32, f32)],
-    pub(crate) offsets: &'a [usize],
-    pub(crate) corners: &'a [[(u32, f32); 4]],
+    pub(crate) kernels: Kernels<'a>,
     pub(crate) confidence: &'a [f32],
     pub(crate) covered: &'a [bool],
+}
+
+/// Each sample's bilinear corners and kernel cells.
+pub(crate) enum Kernels<'a> {
+    /// Computed once and kept (`cells[offsets[k]..offsets[k + 1]]`): a
+    /// point's few hundred samples, read every iteration.
+    Stored { cells: &'a [(u32, f32)], offsets: &'a [usize], corners: &'a [[(u32, f32); 4]] },
+    /// Computed again at every read from each sample's half vector and
+    /// kernel width: a pool's millions of samples would hold gigabytes of
+    /// cells.
+    Computed { centres: &'a [Vec3], h_r: &'a [(Vec3, f32)] },
+}
+
+impl Kernels<'_> {
+    /// Two per-cell sums over samples `0..n`, each sample adding to them
+    /// through `add(k, scratch, sums)`. Many samples are summed in fixed
+    /// chunks, in parallel, and the chunks' sums added in their order, so
+    /// the result does not depend on the threads; a point's few hundred
+    /// are one chunk.
+    pub(crate) fn sums(
+        &self,
+        grid: NdfGrid,
+        n: usize,
+        add: impl Fn(usize, &mut Vec<(u32, f32)>, [&mut [f64]; 2]) + Sync,
+    ) -> [Vec<f64>; 2] {
+        let cells = grid.len();
+        let chunk = n.div_ceil(SUM_CHUNKS).max(MIN_SUM_CHUNK);
+        let run = |range: std::ops::Range<usize>| {
+            let (mut a, mut b) = (vec![0.0f64; cells], vec![0.0f64; cells]);
+            let mut scratch = Vec::new();
+            for k in range {
+                add(k, &mut scratch, [&mut a, &mut b]);
+            }
+            [a, b]
+        };
+        if n <= chunk {
+            return run(0..n);
+        }
+        let parts: Vec<[Vec<f64>; 2]> =
+            (0..n.div_ceil(chunk)).into_par_iter().map(|c| run(c * chunk..((c + 1) * chunk).min(n))).collect();
+        let mut parts = parts.into_iter();
+        let mut total = parts.next().unwrap_or_else(|| [vec![0.0; cells], vec![0.0; cells]]);
+        for [a, b] in parts {
+            total[0].iter_mut().zip(&a).for_each(|(t, v)| *t += v);
+            total[1].iter_mut().zip(&b).for_each(|(t, v)| *t += v);
+        }
+        total
+    }
+
+    /// Sample `k`'s corners and kernel cells (`scratch` holds computed ones).
+    pub(crate) fn get<'s>(
+        &'s self,
+        grid: NdfGrid,
+        k: usize,
+        scratch: &'s mut Vec<(u32, f32)>,
+    ) -> ([(u32, f32); 4], &'s [(u32, f32)]) {
+        match self {
+            Kernels::Stored { cells, offsets, corners: c } => (c[k], &cells[offsets[k]..offsets[k + 1]]),
+            Kernels::Computed { centres, h_r } => {
+                let (h, r) = h_r[k];
+                scratch.clear();
+                kernel_cells(grid, centres, h, r, scratch);
+                (corners(grid, h), scratch.as_slice())
+            }
+        }
+    }
 }
 
 impl SplatLayout<'_> {
@@ -309,24 +373,22 @@ impl SplatLayout<'_> {
     /// sample that is not used); without weights every sample weighs 1.
     pub(crate) fn twice(&self, values: &mut [f32], d: &[f32], weight: Option<&[f64]>, passes: u32) {
         let cells = self.grid.len();
-        let mut sum_w = vec![0.0f64; cells];
-        let mut sum_wr = vec![0.0f64; cells];
         let mut corr = vec![0.0f32; cells];
         for _ in 0..passes {
-            sum_w.iter_mut().for_each(|v| *v = 0.0);
-            sum_wr.iter_mut().for_each(|v| *v = 0.0);
-            for (k, &dk) in d.iter().enumerate() {
-                let wk = weight.map_or(1.0, |w| w[k]);
+            let values_now = &*values;
+            let [sum_w, sum_wr] = self.kernels.sums(self.grid, d.len(), |k, scratch, [sum_w, sum_wr]| {
+                let (dk, wk) = (d[k], weight.map_or(1.0, |w| w[k]));
                 if !(wk > 0.0) || !dk.is_finite() {
-                    continue;
+                    return;
                 }
-                let at: f32 = self.corners[k].iter().map(|&(c, w)| w * values[c as usize]).sum();
+                let (corners, cells) = self.kernels.get(self.grid, k, scratch);
+                let at: f32 = corners.iter().map(|&(c, w)| w * values_now[c as usize]).sum();
                 let r = (dk - at) as f64;
-                for &(c, w) in &self.cells[self.offsets[k]..self.offsets[k + 1]] {
+                for &(c, w) in cells {
                     sum_w[c as usize] += w as f64 * wk;
                     sum_wr[c as usize] += w as f64 * wk * r;
                 }
-            }
+            });
             for c in 0..cells {
                 corr[c] = if sum_w[c] > 0.0 { (sum_wr[c] / sum_w[c]) as f32 } else { 0.0 };
             }
@@ -339,6 +401,10 @@ impl SplatLayout<'_> {
         }
     }
 }
+
+/// Chunks of [`Kernels::sums`] over many samples, and the smallest chunk.
+const SUM_CHUNKS: usize = 64;
+const MIN_SUM_CHUNK: usize = 8192;
 
 /// Morphological closing of the observed set (3x3 square, periodic in phi,
 /// clamped in theta), as separable 3-tap passes.
@@ -411,9 +477,7 @@ fn splat_once(grid: NdfGrid, ps: &PointSamples, spec: &[f32], sigma_o: f32, pass
     if passes > 0 {
         let layout = SplatLayout {
             grid,
-            cells: &s.cells,
-            offsets: &s.offsets,
-            corners: &s.corners,
+            kernels: Kernels::Stored { cells: &s.cells, offsets: &s.offsets, corners: &s.corners },
             confidence: &s.confidence,
             covered: &s.covered,
         };

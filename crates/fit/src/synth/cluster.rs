@@ -21,8 +21,9 @@ fn d2(a: &[f32], b: &[f32]) -> f32 {
 /// Cluster `points` by their tables as they stand (unrotated): k-means
 /// with `k` clusters on the synthesis's descriptors over the cells most of
 /// them observe (`descriptor` cells). Returns each point's cluster, in the
-/// order of `points`. Shared by the analytic fits (shape parameters per
-/// cluster) and pooled estimation (one NDF per cluster).
+/// order of `points`. The analytic fits share shape parameters per
+/// cluster; pooled estimation halves clusters with [`kmeans`] on the same
+/// descriptors, as often as its test takes the halves.
 pub fn by_table(tables: &TableSet, points: &[usize], descriptor: usize, k: usize, seed: u64) -> Vec<u32> {
     let core = super::descriptor::Core::find(tables, points, descriptor);
     kmeans(&core.describe_all(tables, points), core.len(), k, seed)
