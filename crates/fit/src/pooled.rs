@@ -172,9 +172,9 @@ pub fn pool(
     let dim = core.len();
     let max_clusters = (pool.clusters as usize).max(1);
     let mut stats = PoolStats::default();
-    // Clusters still to test (with their estimate) and clusters settled.
-    // Level by level (the tree stays balanced when the cap binds), the
-    // largest clusters first; a level's tests run in parallel.
+    // Clusters still to test and clusters settled. Level by level (the
+    // tree stays balanced when the cap binds), the largest clusters
+    // first; a level's tests run in parallel.
     let mut level: Vec<Vec<usize>> = vec![(0..members.len()).collect()];
     let mut settled: Vec<Vec<usize>> = Vec::new();
     while !level.is_empty() {
@@ -201,18 +201,18 @@ pub fn pool(
         }
         level = next;
     }
-    settled.retain(|c| c.len() >= MIN_MEMBERS);
-    let chosen: Vec<(usize, NdfTable, f32)> = settled
+    // Each settled cluster's table on all its points (a cluster too small
+    // to pool, or without a table, pools nothing).
+    let chosen: Vec<Option<Vec<(usize, NdfTable, f32)>>> = settled
         .par_iter()
-        .filter_map(|cluster| {
-            let est = estimate(settings, op, &members, cluster);
+        .map(|cluster| {
+            let est = (cluster.len() >= MIN_MEMBERS).then(|| estimate(settings, op, &members, cluster)).flatten();
             ctx.progress.advance(cluster.len() as u64);
             est.map(|e| choose(maps_ref, op, &members, cluster, &e, observed))
         })
-        .flatten()
         .collect();
-    stats.clusters = settled.len();
-    for (p, table, k_s) in chosen {
+    stats.clusters = chosen.iter().filter(|c| c.is_some()).count();
+    for (p, table, k_s) in chosen.into_iter().flatten().flatten() {
         let colour_lum = lum(maps.ks[p]);
         let colour = maps.ks[p].map(|c| if colour_lum > 0.0 { c / colour_lum } else { 1.0 });
         maps.ks[p] = colour.map(|c| c * k_s);
