@@ -433,7 +433,6 @@ fn choose(
         .filter_map(|&j| {
             let mb = &members[j];
             let own = maps.tables.get(mb.p);
-            let own_masking = op.projected_areas(&own);
             // The pooled table where the pool observed, the point's own
             // completed table beyond, agreeing in mass over the pool's region.
             let pooled = Splatted { table: est.table.clone(), k_s: 1.0 };
@@ -442,7 +441,7 @@ fn choose(
             let pooled_fit = Fit::of(mb, &joined, &joined_masking);
             let k_joined = pooled_fit.scale()?;
             let chi2_pooled = pooled_fit.chi2(k_joined);
-            let chi2_own = Fit::of(mb, &own, &own_masking).chi2(mb.k_s);
+            let chi2_own = Fit::own(mb, &own).chi2(mb.k_s);
             let cells = own_observed.map_or_else(|| own.coverage().count(), |o| o.get(mb.p).coverage().count());
             let k_own = cells.min(mb.samples.len()) as f64;
             (chi2_pooled + 2.0 <= chi2_own + 2.0 * k_own).then_some((mb.p, joined, k_joined))
@@ -491,9 +490,20 @@ struct Fit {
 impl Fit {
     fn of(mb: &Member, table: &NdfTable, m: &MaskingTable) -> Self {
         let sigma_o = m.projected_area(mb.o);
+        Self::with(mb, table, |x| 4.0 * m.projected_area(x.i) * sigma_o)
+    }
+
+    /// The same under the point's own table's masking, which the member
+    /// keeps per sample.
+    fn own(mb: &Member, table: &NdfTable) -> Self {
+        Self::with(mb, table, |x| x.own_masking)
+    }
+
+    /// The sums with `masking(x)` the sample's `4 sigma(i) sigma(o)`.
+    fn with(mb: &Member, table: &NdfTable, masking: impl Fn(&PoolSample) -> f32) -> Self {
         let mut f = Fit::default();
         for x in &mb.samples {
-            let denom = 4.0 * m.projected_area(x.i) * sigma_o;
+            let denom = masking(x);
             let g = if denom > 0.0 { (table.eval(x.h) * x.fresnel / denom) as f64 } else { 0.0 };
             let (s, w) = (x.spec as f64, 1.0 / x.var as f64);
             f.ss += w * s * s;
