@@ -9,11 +9,13 @@
 //! - [`world`]: the physical timeline (carriage position, lit LED) that the
 //!   simulated camera renders from and tests assert on.
 
+mod batch;
 pub mod camera;
 pub mod faults;
 pub mod link;
 pub mod materials;
 pub mod mcu;
+mod noise;
 mod reflect;
 pub mod truth;
 pub mod world;

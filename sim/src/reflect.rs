@@ -14,7 +14,7 @@ use std::f32::consts::FRAC_1_PI;
 use std::sync::Arc;
 
 use brdf::fresnel::Fresnel;
-use brdf::ndf::{BeckmannLobe, Ndf};
+use brdf::ndf::{Beckmann, BeckmannLobe, Ndf};
 use brdf::{Brdf, frame};
 use glam::Vec3;
 use material::PointMaterial;
@@ -34,6 +34,9 @@ pub(crate) enum Reflectance {
 pub(crate) struct ViewedMicrofacet {
     /// `kd / pi` in the channel.
     diffuse: f32,
+    /// The lobes as the material gives them, when it is made of Beckmann
+    /// lobes (for [`Reflectance::batched`]).
+    lobes: Option<Vec<(f32, Beckmann)>>,
     ks: f32,
     fresnel: Fresnel,
     channel: usize,
@@ -90,14 +93,14 @@ impl Reflectance {
             PointMaterial::Diffuse { .. } | PointMaterial::Microfacet(_) if below => Reflectance::Black,
             PointMaterial::Diffuse { kd } => Reflectance::Diffuse((kd.max(Vec3::ZERO) * FRAC_1_PI)[channel]),
             PointMaterial::Microfacet(m) => {
-                let ndf = match m.ndf.beckmann_lobes() {
-                    Some(lobes) => {
-                        ViewedNdf::Lobes(lobes.into_iter().map(|(w, b)| (w, BeckmannLobe::new(&b))).collect())
-                    }
+                let lobes = m.ndf.beckmann_lobes();
+                let ndf = match &lobes {
+                    Some(lobes) => ViewedNdf::Lobes(lobes.iter().map(|(w, b)| (*w, BeckmannLobe::new(b))).collect()),
                     None => ViewedNdf::Other(m.ndf.clone()),
                 };
                 Reflectance::Microfacet(Box::new(ViewedMicrofacet {
                     diffuse: (m.kd * FRAC_1_PI)[channel],
+                    lobes,
                     ks: m.ks[channel],
                     fresnel: m.fresnel,
                     channel,
@@ -106,6 +109,40 @@ impl Reflectance {
                 }))
             }
             PointMaterial::Model(_) => Reflectance::General { brdf, channel },
+        }
+    }
+
+    /// What the camera's batched evaluation ([`crate::batch`]) needs, if it
+    /// can evaluate this reflectance: nothing, a diffuse surface, or a
+    /// microfacet surface of at most [`MAX_BATCHED_LOBES`] Beckmann lobes
+    /// with a dielectric or Schlick Fresnel term (every built-in sample but
+    /// velvet's pile and brushed metal's conductor).
+    pub(crate) fn batched(&self) -> Option<Batched> {
+        match self {
+            Reflectance::Black => Some(Batched::default()),
+            Reflectance::Diffuse(f) => Some(Batched { black: false, diffuse: *f, ..Batched::default() }),
+            Reflectance::Microfacet(m) => {
+                let lobes = m.lobes.as_ref().filter(|l| !l.is_empty() && l.len() <= MAX_BATCHED_LOBES)?;
+                let fresnel = match m.fresnel {
+                    Fresnel::One => BatchedFresnel::Schlick { f0: 1.0 },
+                    Fresnel::Schlick { f0 } => BatchedFresnel::Schlick { f0: f0[m.channel.min(2)] },
+                    Fresnel::Dielectric { eta } => BatchedFresnel::Dielectric { eta, scale: 1.0 },
+                    Fresnel::DielectricRelative { eta } => BatchedFresnel::Dielectric {
+                        eta,
+                        scale: 1.0 / brdf::fresnel::dielectric_f0(eta).max(brdf::fresnel::RELATIVE_F0_FLOOR),
+                    },
+                    Fresnel::Conductor { .. } => return None,
+                };
+                Some(Batched {
+                    diffuse: m.diffuse,
+                    ks: m.ks,
+                    sigma_o: m.sigma_o,
+                    fresnel,
+                    lobes: lobes.iter().copied().collect(),
+                    black: false,
+                })
+            }
+            Reflectance::General { .. } => None,
         }
     }
 
@@ -129,6 +166,43 @@ impl Reflectance {
             Reflectance::General { brdf, channel } => brdf.eval(i, o)[*channel],
         }
     }
+}
+
+/// The most lobes a batched pixel may have.
+pub(crate) const MAX_BATCHED_LOBES: usize = 2;
+
+/// A pixel's reflectance as plain numbers ([`Reflectance::batched`]).
+#[derive(Clone, Debug)]
+pub(crate) struct Batched {
+    /// Nothing reflects (the radiance is the ambient light's alone).
+    pub black: bool,
+    pub diffuse: f32,
+    /// 0 for a surface without a specular term.
+    pub ks: f32,
+    pub sigma_o: f32,
+    pub fresnel: BatchedFresnel,
+    pub lobes: Vec<(f32, Beckmann)>,
+}
+
+impl Default for Batched {
+    fn default() -> Self {
+        Self {
+            black: true,
+            diffuse: 0.0,
+            ks: 0.0,
+            sigma_o: 1.0,
+            fresnel: BatchedFresnel::Schlick { f0: 1.0 },
+            lobes: Vec::new(),
+        }
+    }
+}
+
+/// The Fresnel terms the batch evaluates: `scale` times the exact
+/// dielectric's, or Schlick's (`f0 = 1` is no Fresnel term).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) enum BatchedFresnel {
+    Dielectric { eta: f32, scale: f32 },
+    Schlick { f0: f32 },
 }
 
 impl ViewedMicrofacet {

@@ -66,37 +66,43 @@ impl LedBar {
     /// the sample) to `eye`? `margin_mm` grows the bar on every side (the
     /// fitter masks conservatively; the simulator renders with 0).
     pub fn occludes(&self, bar_x_mm: f32, p: Vec3, eye: Vec3, margin_mm: f32) -> bool {
-        let y0 = self.first_led_y_mm - 0.5 * self.pitch_mm;
-        let y1 = self.first_led_y_mm + (self.n_leds as f32 - 0.5) * self.pitch_mm;
-        let lo = Vec3::new(bar_x_mm - 0.5 * self.width_mm, y0, self.height_mm) - Vec3::splat(margin_mm);
-        let hi =
-            Vec3::new(bar_x_mm + 0.5 * self.width_mm, y1, self.height_mm + self.thickness_mm) + Vec3::splat(margin_mm);
-        segment_hits_box(p, eye, lo, hi)
+        self.shadow_span(p, eye, margin_mm).is_some_and(|(lo, hi)| lo <= bar_x_mm && bar_x_mm <= hi)
     }
-}
 
-/// Slab test of the segment `a -> b` against an axis-aligned box.
-fn segment_hits_box(a: Vec3, b: Vec3, lo: Vec3, hi: Vec3) -> bool {
-    let d = b - a;
-    let (mut t0, mut t1) = (0.0f32, 1.0f32);
-    for k in 0..3 {
-        if d[k].abs() < 1e-12 {
-            if a[k] < lo[k] || a[k] > hi[k] {
-                return false;
-            }
-        } else {
-            let (mut ta, mut tb) = ((lo[k] - a[k]) / d[k], (hi[k] - a[k]) / d[k]);
-            if ta > tb {
-                std::mem::swap(&mut ta, &mut tb);
-            }
-            t0 = t0.max(ta);
-            t1 = t1.min(tb);
-            if t0 > t1 {
-                return false;
+    /// The bar positions (its centre line's `x`, lowest and highest) at
+    /// which it blocks the straight path from `p` to `eye`, or `None` where
+    /// no position does. The path's stretch at the bar's `y` and height does
+    /// not depend on where the bar is along `x`, so a renderer that looks
+    /// from fixed points computes this once per point, not per frame.
+    pub fn shadow_span(&self, p: Vec3, eye: Vec3, margin_mm: f32) -> Option<(f32, f32)> {
+        let y0 = self.first_led_y_mm - 0.5 * self.pitch_mm - margin_mm;
+        let y1 = self.first_led_y_mm + (self.n_leds as f32 - 0.5) * self.pitch_mm + margin_mm;
+        let z0 = self.height_mm - margin_mm;
+        let z1 = self.height_mm + self.thickness_mm + margin_mm;
+        let d = eye - p;
+        // Slab test along y and z: the part `t0..t1` of the segment
+        // `p + t d`, `t` in 0..1, inside the bar's cross-section.
+        let (mut t0, mut t1) = (0.0f32, 1.0f32);
+        for (a, d, lo, hi) in [(p.y, d.y, y0, y1), (p.z, d.z, z0, z1)] {
+            if d.abs() < 1e-12 {
+                if a < lo || a > hi {
+                    return None;
+                }
+            } else {
+                let (ta, tb) = ((lo - a) / d, (hi - a) / d);
+                t0 = t0.max(ta.min(tb));
+                t1 = t1.min(ta.max(tb));
+                if t0 > t1 {
+                    return None;
+                }
             }
         }
+        // Along x that part spans `xa..xb`; the bar blocks it when its
+        // width overlaps that span.
+        let (xa, xb) = if d.x.abs() < 1e-12 { (p.x, p.x) } else { (p.x + d.x * t0, p.x + d.x * t1) };
+        let half = 0.5 * self.width_mm + margin_mm;
+        Some((xa.min(xb) - half, xa.max(xb) + half))
     }
-    true
 }
 
 /// Mechanical limits of the gantry (positions of the bar's centre line).
@@ -298,6 +304,58 @@ mod tests {
         assert!(!g.bar.occludes(-80.0, p, eye, 0.0));
         // Off the end of the bar in y nothing is blocked.
         assert!(!g.bar.occludes(-40.0 + 0.0, Vec3::new(0.0, 150.0, 0.0), eye + Vec3::new(0.0, 150.0, 0.0), 0.0));
+    }
+
+    /// The span of blocking bar positions is the slab test of the whole
+    /// box (x, y and z at once) at every bar position, away from the span's
+    /// edges (where the two forms round differently).
+    #[test]
+    fn shadow_span_is_where_the_bar_box_meets_the_line_of_sight() {
+        fn box_hit(a: Vec3, b: Vec3, lo: Vec3, hi: Vec3) -> bool {
+            let d = b - a;
+            let (mut t0, mut t1) = (0.0f32, 1.0f32);
+            for k in 0..3 {
+                if d[k] == 0.0 {
+                    if a[k] < lo[k] || a[k] > hi[k] {
+                        return false;
+                    }
+                    continue;
+                }
+                let (ta, tb) = ((lo[k] - a[k]) / d[k], (hi[k] - a[k]) / d[k]);
+                t0 = t0.max(ta.min(tb));
+                t1 = t1.min(ta.max(tb));
+            }
+            t0 <= t1
+        }
+        let bar = RigGeometry::default().bar;
+        let mut state = 0x2545_f491_4f6c_dd1du64;
+        let mut uniform = |lo: f32, hi: f32| {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            lo + (hi - lo) * (state >> 40) as f32 / (1u64 << 24) as f32
+        };
+        let (mut blocked, mut clear) = (0, 0);
+        for _ in 0..200_000 {
+            let p = Vec3::new(uniform(-60.0, 60.0), uniform(-60.0, 260.0), 0.0);
+            let eye = Vec3::new(uniform(-300.0, 300.0), uniform(-100.0, 300.0), uniform(5.0, 400.0));
+            let margin = if uniform(0.0, 1.0) < 0.5 { 0.0 } else { 2.0 };
+            let x = uniform(-150.0, 150.0);
+            let y0 = bar.first_led_y_mm - 0.5 * bar.pitch_mm - margin;
+            let y1 = bar.first_led_y_mm + (bar.n_leds as f32 - 0.5) * bar.pitch_mm + margin;
+            let hit = |x: f32| {
+                let lo = Vec3::new(x - 0.5 * bar.width_mm - margin, y0, bar.height_mm - margin);
+                let hi = Vec3::new(x + 0.5 * bar.width_mm + margin, y1, bar.height_mm + bar.thickness_mm + margin);
+                box_hit(p, eye, lo, hi)
+            };
+            let want = hit(x);
+            if hit(x - 1e-3) != want || hit(x + 1e-3) != want {
+                continue;
+            }
+            assert_eq!(bar.occludes(x, p, eye, margin), want, "bar at {x}, p {p}, eye {eye}, margin {margin}");
+            if want { blocked += 1 } else { clear += 1 }
+        }
+        assert!(blocked > 1000 && clear > 1000, "{blocked} blocked, {clear} clear");
     }
 
     #[test]
