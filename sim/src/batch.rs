@@ -1,6 +1,6 @@
 //! The simulated camera's pixels eight at a time (SIMD): the radiance of
 //! every pixel whose surface is nothing, diffuse, or a microfacet surface
-//! of one or two Beckmann lobes with a dielectric or Schlick Fresnel term,
+//! of one or two Beckmann lobes (with any Fresnel term the materials have),
 //! and every pixel's reading by the sensor (noise and quantisation).
 //!
 //! The camera spends nearly all its time on a few transcendental functions
@@ -19,12 +19,17 @@
 //! row loaded side by side.
 
 use glam::{Mat3, Vec3};
-use wide::{CmpGe, CmpGt, CmpLe, f32x8};
+use wide::{CmpEq, CmpGe, CmpGt, CmpLe, f32x8};
 
 use crate::reflect::{BatchedFresnel, MAX_BATCHED_LOBES, Reflectance};
 
 /// Pixels per batch.
 pub(crate) const LANES: usize = 8;
+
+/// [`PixelColumns`]'s kinds of Fresnel term.
+const SCHLICK: f32 = 0.0;
+const DIELECTRIC: f32 = 1.0;
+const CONDUCTOR: f32 = 2.0;
 
 /// One lobe's constants, per pixel (weight 0 where a pixel has fewer lobes).
 #[derive(Default)]
@@ -65,10 +70,14 @@ pub(crate) struct PixelColumns {
     diffuse: Vec<f32>,
     ks: Vec<f32>,
     sigma_o: Vec<f32>,
-    /// The dielectric's index, or 0 for Schlick's term.
+    /// The Fresnel term: its kind ([`SCHLICK`], [`DIELECTRIC`] or
+    /// [`CONDUCTOR`]), the index (dielectric, conductor's real part), the
+    /// other parameter (the dielectric's scale, Schlick's `F0`, the
+    /// conductor's extinction `k`) and its largest value.
+    fresnel_kind: Vec<f32>,
     eta: Vec<f32>,
-    /// The dielectric's scale, or Schlick's `F0`.
     f_param: Vec<f32>,
+    f_max: Vec<f32>,
     lobes: [LobeColumns; MAX_BATCHED_LOBES],
 }
 
@@ -107,12 +116,15 @@ impl PixelColumns {
             c.diffuse.push(b.diffuse);
             c.ks.push(b.ks);
             c.sigma_o.push(b.sigma_o);
-            let (eta, f_param) = match b.fresnel {
-                BatchedFresnel::Dielectric { eta, scale } => (eta, scale),
-                BatchedFresnel::Schlick { f0 } => (0.0, f0),
+            let (kind, eta, f_param, f_max) = match b.fresnel {
+                BatchedFresnel::Schlick { f0 } => (SCHLICK, 0.0, f0, f0.max(1.0)),
+                BatchedFresnel::Dielectric { eta, scale } => (DIELECTRIC, eta, scale, scale),
+                BatchedFresnel::Conductor { eta, k } => (CONDUCTOR, eta, k, 1.0),
             };
+            c.fresnel_kind.push(kind);
             c.eta.push(eta);
             c.f_param.push(f_param);
+            c.f_max.push(f_max);
             for (k, l) in c.lobes.iter_mut().enumerate() {
                 match b.lobes.get(k) {
                     Some(&(w, lobe)) => {
@@ -308,12 +320,18 @@ struct Surface<'a> {
     sigma_o: f32x8,
     eta: f32x8,
     f_param: f32x8,
+    f_max: f32x8,
+    /// Lanes of each kind of Fresnel term.
+    dielectric: f32x8,
+    conductor: f32x8,
     o: [f32x8; 3],
     /// How many lobes any of the eight pixels has (lobes are filled in order).
     n_lobes: usize,
     specular: bool,
-    dielectric: bool,
-    schlick: bool,
+    /// Whether any lane with a specular term has each kind.
+    any_dielectric: bool,
+    any_conductor: bool,
+    any_schlick: bool,
 }
 
 /// `1 / (2 sqrt(pi))`.
@@ -331,7 +349,8 @@ impl<'a> Surface<'a> {
     fn load(c: &'a PixelColumns, k: usize) -> Self {
         let zero = f32x8::ZERO;
         let ks = lanes(&c.ks, k);
-        let eta = lanes(&c.eta, k);
+        let kind = lanes(&c.fresnel_kind, k);
+        let (dielectric, conductor) = (kind.cmp_eq(f32x8::splat(DIELECTRIC)), kind.cmp_eq(f32x8::splat(CONDUCTOR)));
         let has_specular = ks.cmp_gt(zero);
         Surface {
             columns: c,
@@ -339,13 +358,17 @@ impl<'a> Surface<'a> {
             diffuse: lanes(&c.diffuse, k),
             ks,
             sigma_o: lanes(&c.sigma_o, k),
+            eta: lanes(&c.eta, k),
             f_param: lanes(&c.f_param, k),
+            f_max: lanes(&c.f_max, k),
             o: [lanes(&c.ox, k), lanes(&c.oy, k), lanes(&c.oz, k)],
             n_lobes: c.lobes.iter().take_while(|l| lanes(&l.weight, k).cmp_gt(zero).any()).count(),
             specular: has_specular.any(),
-            dielectric: (has_specular & eta.cmp_gt(zero)).any(),
-            schlick: (has_specular & !eta.cmp_gt(zero)).any(),
-            eta,
+            any_dielectric: (has_specular & dielectric).any(),
+            any_conductor: (has_specular & conductor).any(),
+            any_schlick: (has_specular & !dielectric & !conductor).any(),
+            dielectric,
+            conductor,
         }
     }
 
@@ -380,7 +403,7 @@ impl<'a> Surface<'a> {
         // Far from every lobe the specular term is at most `F_max D / (4 iz
         // sigma(o))` (sigma(i) >= iz); below 1e-7 of the diffuse term in
         // every lane it changes no pixel, and the rest is skipped.
-        let bound = self.ks * self.f_param.max(one) * d / (iz * self.sigma_o * 4.0);
+        let bound = self.ks * self.f_max * d / (iz * self.sigma_o * 4.0);
         if (bound.cmp_le(self.diffuse * 1e-7) | !has_h).all() {
             return (self.diffuse.is_finite() & self.diffuse.cmp_gt(zero)).blend(self.diffuse, zero);
         }
@@ -409,30 +432,68 @@ impl<'a> Surface<'a> {
         let sigma_i = sigma_i.max(iz);
         let cos_d = (ix * hx + iy * hy + iz * hz).max(zero).min(one);
         let fresnel = {
-            let dielectric = if self.dielectric {
-                let eta = self.eta;
-                let sin2_t = (one - cos_d * cos_d) / (eta * eta);
-                let cos_t = (one - sin2_t).max(zero).sqrt();
-                let rs = (cos_d - eta * cos_t) / (cos_d + eta * cos_t);
-                let rp = (eta * cos_d - cos_t) / (eta * cos_d + cos_t);
-                let f = ((rs * rs + rp * rp) * 0.5).max(zero).min(one);
-                sin2_t.cmp_ge(one).blend(one, f) * self.f_param
-            } else {
-                zero
-            };
-            let schlick = if self.schlick {
+            let mut f = zero;
+            if self.any_schlick {
                 let m = one - cos_d;
                 let m2 = m * m;
-                self.f_param + (one - self.f_param) * m2 * m2 * m
-            } else {
-                zero
-            };
-            self.eta.cmp_gt(zero).blend(dielectric, schlick)
+                f = self.f_param + (one - self.f_param) * m2 * m2 * m;
+            }
+            if self.any_dielectric {
+                f = self.dielectric.blend(self.dielectric_fresnel(cos_d), f);
+            }
+            if self.any_conductor {
+                f = self.conductor.blend(self.conductor_fresnel(cos_d), f);
+            }
+            f
         };
         let specular = fresnel * d / (sigma_i * self.sigma_o * 4.0);
         let has_specular = has_h & d.cmp_gt(zero) & self.ks.cmp_gt(zero);
         let f = self.diffuse + self.ks * has_specular.blend(specular, zero);
         (f.is_finite() & f.cmp_gt(zero)).blend(f, zero)
+    }
+}
+
+impl Surface<'_> {
+    /// `brdf::fresnel::dielectric` (index `eta`) times the lanes' scale.
+    #[inline]
+    fn dielectric_fresnel(&self, cos_d: f32x8) -> f32x8 {
+        let (zero, one) = (f32x8::ZERO, f32x8::ONE);
+        let eta = self.eta;
+        let sin2_t = (one - cos_d * cos_d) / (eta * eta);
+        let cos_t = (one - sin2_t).max(zero).sqrt();
+        let rs = (cos_d - eta * cos_t) / (cos_d + eta * cos_t);
+        let rp = (eta * cos_d - cos_t) / (eta * cos_d + cos_t);
+        let f = ((rs * rs + rp * rp) * 0.5).max(zero).min(one);
+        sin2_t.cmp_ge(one).blend(one, f) * self.f_param
+    }
+
+    /// `brdf::fresnel::conductor` (index `eta + i k`, `k` in `f_param`):
+    /// `cos_t` the principal square root of `1 - sin^2_i / n^2`, and each
+    /// polarisation's reflectance `|a - b|^2 / |a + b|^2`.
+    #[inline]
+    fn conductor_fresnel(&self, ci: f32x8) -> f32x8 {
+        let (zero, one) = (f32x8::ZERO, f32x8::ONE);
+        let (eta, k) = (self.eta, self.f_param);
+        let sin2_i = one - ci * ci;
+        // sin^2_t = sin^2_i / n^2, n^2 = (eta^2 - k^2) + i 2 eta k.
+        let (n2r, n2i) = (eta * eta - k * k, eta * k * 2.0);
+        let n2n = n2r * n2r + n2i * n2i;
+        let (zr, zi) = (one - sin2_i * n2r / n2n, sin2_i * n2i / n2n);
+        // The principal square root of z = 1 - sin^2_t.
+        let norm = (zr * zr + zi * zi).sqrt();
+        let t1 = ((norm + zr.abs()) * 0.5).sqrt();
+        let t2 = zi * 0.5 / t1;
+        let right = zr.cmp_ge(zero);
+        let nonzero = norm.cmp_gt(zero);
+        let cr = nonzero.blend(right.blend(t1, t2.abs()), zero);
+        let cim = nonzero.blend(right.blend(t2, t1.copysign(zi)), zero);
+        // Parallel: n ci against cos_t; perpendicular: ci against n cos_t.
+        let (ar, ai) = (eta * ci, k * ci);
+        let r_parl = ((ar - cr) * (ar - cr) + (ai - cim) * (ai - cim)) / ((ar + cr) * (ar + cr) + (ai + cim) * (ai + cim));
+        let (br, bi) = (eta * cr - k * cim, eta * cim + k * cr);
+        let r_perp = ((ci - br) * (ci - br) + bi * bi) / ((ci + br) * (ci + br) + bi * bi);
+        let f = (r_parl + r_perp) * 0.5;
+        f.is_finite().blend(f.max(zero).min(one), one)
     }
 }
 

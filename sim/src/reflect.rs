@@ -115,8 +115,7 @@ impl Reflectance {
     /// What the camera's batched evaluation ([`crate::batch`]) needs, if it
     /// can evaluate this reflectance: nothing, a diffuse surface, or a
     /// microfacet surface of at most [`MAX_BATCHED_LOBES`] Beckmann lobes
-    /// with a dielectric or Schlick Fresnel term (every built-in sample but
-    /// velvet's pile and brushed metal's conductor).
+    /// (every built-in sample but velvet's pile).
     pub(crate) fn batched(&self) -> Option<Batched> {
         match self {
             Reflectance::Black => Some(Batched::default()),
@@ -131,7 +130,9 @@ impl Reflectance {
                         eta,
                         scale: 1.0 / brdf::fresnel::dielectric_f0(eta).max(brdf::fresnel::RELATIVE_F0_FLOOR),
                     },
-                    Fresnel::Conductor { .. } => return None,
+                    Fresnel::Conductor { eta, k } => {
+                        BatchedFresnel::Conductor { eta: eta[m.channel.min(2)], k: k[m.channel.min(2)] }
+                    }
                 };
                 Some(Batched {
                     diffuse: m.diffuse,
@@ -198,11 +199,13 @@ impl Default for Batched {
 }
 
 /// The Fresnel terms the batch evaluates: `scale` times the exact
-/// dielectric's, or Schlick's (`f0 = 1` is no Fresnel term).
+/// dielectric's, Schlick's (`f0 = 1` is no Fresnel term), or the exact
+/// conductor's, in the pixel's channel.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub(crate) enum BatchedFresnel {
     Dielectric { eta: f32, scale: f32 },
     Schlick { f0: f32 },
+    Conductor { eta: f32, k: f32 },
 }
 
 impl ViewedMicrofacet {
