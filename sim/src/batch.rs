@@ -126,30 +126,20 @@ impl PixelColumns {
             c.f_param.push(f_param);
             c.f_max.push(f_max);
             for (k, l) in c.lobes.iter_mut().enumerate() {
-                match b.lobes.get(k) {
-                    Some(&(w, lobe)) => {
-                        let (s, co) = (-lobe.angle_rad).sin_cos();
-                        let (ax, ay) = (lobe.alpha_x, lobe.alpha_y);
-                        l.weight.push(w);
-                        l.cos.push(co);
-                        l.sin.push(s);
-                        l.inv_ax2.push(1.0 / (ax * ax));
-                        l.inv_ay2.push(1.0 / (ay * ay));
-                        l.ln_norm.push((std::f32::consts::PI * ax * ay).ln());
-                        l.ax.push(ax);
-                        l.ay.push(ay);
-                    }
-                    None => {
-                        l.weight.push(0.0);
-                        l.cos.push(1.0);
-                        l.sin.push(0.0);
-                        l.inv_ax2.push(1.0);
-                        l.inv_ay2.push(1.0);
-                        l.ln_norm.push(0.0);
-                        l.ax.push(1.0);
-                        l.ay.push(1.0);
-                    }
-                }
+                // A lobe the pixel lacks weighs 0 (its constants only keep
+                // the arithmetic finite).
+                let (w, (ax, ay), (sin, cos), ln_norm) = match b.lobes.get(k) {
+                    Some((w, lobe)) => (*w, lobe.alphas(), lobe.rotation(), lobe.ln_norm()),
+                    None => (0.0, (1.0, 1.0), (0.0, 1.0), 0.0),
+                };
+                l.weight.push(w);
+                l.cos.push(cos);
+                l.sin.push(sin);
+                l.inv_ax2.push(1.0 / (ax * ax));
+                l.inv_ay2.push(1.0 / (ay * ay));
+                l.ln_norm.push(ln_norm);
+                l.ax.push(ax);
+                l.ay.push(ay);
             }
         }
         c.batch_from =
@@ -489,7 +479,8 @@ impl Surface<'_> {
         let cim = nonzero.blend(right.blend(t2, t1.copysign(zi)), zero);
         // Parallel: n ci against cos_t; perpendicular: ci against n cos_t.
         let (ar, ai) = (eta * ci, k * ci);
-        let r_parl = ((ar - cr) * (ar - cr) + (ai - cim) * (ai - cim)) / ((ar + cr) * (ar + cr) + (ai + cim) * (ai + cim));
+        let r_parl =
+            ((ar - cr) * (ar - cr) + (ai - cim) * (ai - cim)) / ((ar + cr) * (ar + cr) + (ai + cim) * (ai + cim));
         let (br, bi) = (eta * cr - k * cim, eta * cim + k * cr);
         let r_perp = ((ci - br) * (ci - br) + bi * bi) / ((ci + br) * (ci + br) + bi * bi);
         let f = (r_parl + r_perp) * 0.5;

@@ -797,7 +797,14 @@ mod tests {
             let mut out = vec![0u16; w];
             let (mut sum, mut sum2) = (0.0f64, 0.0f64);
             for row in 0..rows {
-                batch::expose_row(&x, 77 ^ (row as u64).wrapping_mul(0xA24B_AED4_963E_E407), &signal, &gain, &dark, &mut out);
+                batch::expose_row(
+                    &x,
+                    77 ^ (row as u64).wrapping_mul(0xA24B_AED4_963E_E407),
+                    &signal,
+                    &gain,
+                    &dark,
+                    &mut out,
+                );
                 for &v in &out {
                     sum += v as f64;
                     sum2 += (v as f64).powi(2);

@@ -138,7 +138,9 @@ mod tests {
     /// edges of a DN or for a value that is not a number.
     #[test]
     fn quantising_rounds_half_away_from_zero_and_clips() {
-        for (v, dn) in [(0.0, 0), (0.49999997, 0), (0.5, 1), (1.4999999, 1), (2.5, 3), (-3.0, 0), (4094.6, 4095), (1e9, 4095)] {
+        for (v, dn) in
+            [(0.0, 0), (0.49999997, 0), (0.5, 1), (1.4999999, 1), (2.5, 3), (-3.0, 0), (4094.6, 4095), (1e9, 4095)]
+        {
             assert_eq!(quantise(v, 4095.0), dn, "{v}");
         }
         assert_eq!(quantise(f32::NAN, 4095.0), 0);
@@ -164,7 +166,8 @@ mod tests {
     #[test]
     fn draws_follow_the_poisson_distribution() {
         let n = 400_000usize;
-        for (seed, mean) in [1e-6f32, 0.04, 0.7, 1.0, 3.0, 7.5, 11.999, 12.0, 19.3, 29.99, 30.0].into_iter().enumerate() {
+        for (seed, mean) in [1e-6f32, 0.04, 0.7, 1.0, 3.0, 7.5, 11.999, 12.0, 19.3, 29.99, 30.0].into_iter().enumerate()
+        {
             let stream = word(seed as u64 + 100, 0);
             let mut counts = vec![0usize; 200];
             // Through the camera's path: lanes of this mean beside lanes of
@@ -203,7 +206,10 @@ mod tests {
                 chi2 += (tail_count - tail_expected).powi(2) / tail_expected;
                 bins += 1;
             } else {
-                assert!(tail_count <= 20.0 + 10.0 * tail_expected, "mean {mean}: {tail_count} draws in a tail of {tail_expected}");
+                assert!(
+                    tail_count <= 20.0 + 10.0 * tail_expected,
+                    "mean {mean}: {tail_count} draws in a tail of {tail_expected}"
+                );
             }
             if bins >= 2 {
                 let dof = (bins - 1) as f64;

@@ -14,7 +14,7 @@ use std::f32::consts::FRAC_1_PI;
 use std::sync::Arc;
 
 use brdf::fresnel::Fresnel;
-use brdf::ndf::{Beckmann, BeckmannLobe, Ndf};
+use brdf::ndf::{BeckmannLobe, Ndf};
 use brdf::{Brdf, frame};
 use glam::Vec3;
 use material::PointMaterial;
@@ -34,9 +34,6 @@ pub(crate) enum Reflectance {
 pub(crate) struct ViewedMicrofacet {
     /// `kd / pi` in the channel.
     diffuse: f32,
-    /// The lobes as the material gives them, when it is made of Beckmann
-    /// lobes (for [`Reflectance::batched`]).
-    lobes: Option<Vec<(f32, Beckmann)>>,
     ks: f32,
     fresnel: Fresnel,
     channel: usize,
@@ -93,14 +90,14 @@ impl Reflectance {
             PointMaterial::Diffuse { .. } | PointMaterial::Microfacet(_) if below => Reflectance::Black,
             PointMaterial::Diffuse { kd } => Reflectance::Diffuse((kd.max(Vec3::ZERO) * FRAC_1_PI)[channel]),
             PointMaterial::Microfacet(m) => {
-                let lobes = m.ndf.beckmann_lobes();
-                let ndf = match &lobes {
-                    Some(lobes) => ViewedNdf::Lobes(lobes.iter().map(|(w, b)| (*w, BeckmannLobe::new(b))).collect()),
+                let ndf = match m.ndf.beckmann_lobes() {
+                    Some(lobes) => {
+                        ViewedNdf::Lobes(lobes.into_iter().map(|(w, b)| (w, BeckmannLobe::new(&b))).collect())
+                    }
                     None => ViewedNdf::Other(m.ndf.clone()),
                 };
                 Reflectance::Microfacet(Box::new(ViewedMicrofacet {
                     diffuse: (m.kd * FRAC_1_PI)[channel],
-                    lobes,
                     ks: m.ks[channel],
                     fresnel: m.fresnel,
                     channel,
@@ -121,7 +118,10 @@ impl Reflectance {
             Reflectance::Black => Some(Batched::default()),
             Reflectance::Diffuse(f) => Some(Batched { black: false, diffuse: *f, ..Batched::default() }),
             Reflectance::Microfacet(m) => {
-                let lobes = m.lobes.as_ref().filter(|l| !l.is_empty() && l.len() <= MAX_BATCHED_LOBES)?;
+                let lobes = match &m.ndf {
+                    ViewedNdf::Lobes(l) if !l.is_empty() && l.len() <= MAX_BATCHED_LOBES => l,
+                    _ => return None,
+                };
                 let fresnel = match m.fresnel {
                     Fresnel::One => BatchedFresnel::Schlick { f0: 1.0 },
                     Fresnel::Schlick { f0 } => BatchedFresnel::Schlick { f0: f0[m.channel.min(2)] },
@@ -139,7 +139,7 @@ impl Reflectance {
                     ks: m.ks,
                     sigma_o: m.sigma_o,
                     fresnel,
-                    lobes: lobes.iter().copied().collect(),
+                    lobes: lobes.clone(),
                     black: false,
                 })
             }
@@ -182,7 +182,7 @@ pub(crate) struct Batched {
     pub ks: f32,
     pub sigma_o: f32,
     pub fresnel: BatchedFresnel,
-    pub lobes: Vec<(f32, Beckmann)>,
+    pub lobes: Vec<(f32, BeckmannLobe)>,
 }
 
 impl Default for Batched {

@@ -91,6 +91,21 @@ impl BeckmannLobe {
         }
     }
 
+    /// Its roughnesses `(alpha_x, alpha_y)`.
+    pub fn alphas(&self) -> (f32, f32) {
+        (self.alpha_x, self.alpha_y)
+    }
+
+    /// Sine and cosine of the rotation into the lobe frame.
+    pub fn rotation(&self) -> (f32, f32) {
+        self.to_lobe.unwrap_or((0.0, 1.0))
+    }
+
+    /// `ln(pi ax ay)`, the logarithm of its normalisation.
+    pub fn ln_norm(&self) -> f32 {
+        self.ln_norm
+    }
+
     #[inline]
     fn in_lobe_frame(&self, v: Vec3) -> Vec3 {
         match self.to_lobe {
@@ -175,7 +190,11 @@ mod tests {
                 rng.random_range(-PI..PI),
             );
             let l = BeckmannLobe::new(&b);
-            let z: f32 = if rng.random_bool(0.5) { rng.random_range(0.0..1.0) } else { 1.0 - 10f32.powf(rng.random_range(-7.0..-1.0)) };
+            let z: f32 = if rng.random_bool(0.5) {
+                rng.random_range(0.0..1.0)
+            } else {
+                1.0 - 10f32.powf(rng.random_range(-7.0..-1.0))
+            };
             let phi: f32 = rng.random_range(0.0..TAU);
             let s = (1.0 - z * z).max(0.0).sqrt();
             let v = Vec3::new(s * phi.cos(), s * phi.sin(), z);
