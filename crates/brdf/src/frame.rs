@@ -47,6 +47,27 @@ pub fn phi(v: Vec3) -> f32 {
     if p < 0.0 { p + std::f32::consts::TAU } else { p }
 }
 
+/// `x.floor()`, bit for bit (the sign of zero too), without the library
+/// call that `floor` is on the baseline x86-64 target (no SSE4.1): the
+/// tables' and kernels' inner loops floor a coordinate per sample.
+#[inline]
+pub fn floor(x: f32) -> f32 {
+    if x.abs() < 8_388_608.0 {
+        // Below 2^23 a float may have a fraction; truncate, step down
+        // where truncation went up (negative non-integers).
+        let t = (x as i32) as f32;
+        (if t > x { t - 1.0 } else { t }).copysign(x)
+    } else {
+        x.floor()
+    }
+}
+
+/// `x.ceil()`, bit for bit, as [`floor`].
+#[inline]
+pub fn ceil(x: f32) -> f32 {
+    -floor(-x)
+}
+
 /// True when a direction lies strictly above the horizon.
 #[inline]
 pub fn above(v: Vec3) -> bool {
@@ -127,6 +148,42 @@ pub fn cosine_hemisphere_pdf(v: Vec3) -> f32 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn floor_and_ceil_are_the_librarys_bit_for_bit() {
+        let mut xs = vec![0.0f32, -0.0, 0.5, -0.5, 1.0, -1.0, 2.5, -2.5, 1e-30, -1e-30, 8_388_607.5, -8_388_607.5];
+        xs.extend([8_388_608.0, -8_388_608.0, 1e20, -1e20, f32::INFINITY, f32::NEG_INFINITY, f32::MAX, f32::MIN]);
+        // Every float near the integers and halves of a few periods.
+        for k in -400i32..400 {
+            let c = k as f32 * 0.5;
+            let mut v = c;
+            for _ in 0..8 {
+                v = v.next_up();
+                xs.push(v);
+            }
+            let mut v = c;
+            for _ in 0..8 {
+                v = v.next_down();
+                xs.push(v);
+            }
+        }
+        // And a spread of magnitudes.
+        let mut u = 0x1234_5678u32;
+        for _ in 0..200_000 {
+            u ^= u << 13;
+            u ^= u >> 17;
+            u ^= u << 5;
+            let x = f32::from_bits(u);
+            if !x.is_nan() {
+                xs.push(x);
+            }
+        }
+        for x in xs {
+            assert_eq!(floor(x).to_bits(), x.floor().to_bits(), "floor({x:e})");
+            assert_eq!(ceil(x).to_bits(), x.ceil().to_bits(), "ceil({x:e})");
+        }
+        assert!(floor(f32::NAN).is_nan() && ceil(f32::NAN).is_nan());
+    }
 
     #[test]
     fn sin2_is_accurate_near_the_pole() {

@@ -165,7 +165,8 @@ pub struct Scratch {
     /// Kernel cells of every sample, concatenated; `offsets[k]..offsets[k+1]`.
     cells: Vec<(u32, f32)>,
     offsets: Vec<usize>,
-    centres: Vec<Vec3>,
+    /// The last grid's cell centres and ring sines.
+    kernel_grid: Option<KernelGrid>,
     sum_w: Vec<f32>,
     sum_wd: Vec<f32>,
     /// Fixed per point: covered cells, push-pull confidence, per-sample
@@ -232,40 +233,90 @@ fn gauss_lut() -> &'static [f32; GAUSS_LUT + 1] {
     LUT.get_or_init(|| std::array::from_fn(|k| (-(k as f32) / GAUSS_LUT as f32 * GAUSS_MAX_X).exp()))
 }
 
+/// [`gauss_lut`] as `(value, step to the next value)` pairs, one load per
+/// interpolation; the last entry's step is 0.
+fn gauss_steps() -> &'static [(f32, f32); GAUSS_LUT + 1] {
+    static STEPS: std::sync::OnceLock<[(f32, f32); GAUSS_LUT + 1]> = std::sync::OnceLock::new();
+    STEPS.get_or_init(|| {
+        let lut = gauss_lut();
+        std::array::from_fn(|k| (lut[k], if k < GAUSS_LUT { lut[k + 1] - lut[k] } else { 0.0 }))
+    })
+}
+
+/// What [`kernel_cells`] reads of a table's geometry, computed once per
+/// grid: each cell's centre direction and each ring's lower-edge sine.
+#[derive(Debug)]
+pub(crate) struct KernelGrid {
+    pub(crate) grid: NdfGrid,
+    centres: Vec<Vec3>,
+    ring_sin: Vec<f32>,
+}
+
+impl KernelGrid {
+    pub(crate) fn new(grid: NdfGrid) -> Self {
+        let np = grid.n_phi as usize;
+        let centres = (0..grid.len()).map(|c| grid.direction(c / np, c % np)).collect();
+        let ring_sin =
+            (0..grid.n_theta as usize).map(|t| grid.theta_edge(t).sin().max(crate::tol::MIN_RING_SIN)).collect();
+        Self { grid, centres, ring_sin }
+    }
+}
+
 /// Cells within 2.5 kernel widths of `h` (beyond that the weight is below
 /// 0.044 and is dropped), with Gaussian weights (from a 1,024-entry table,
 /// linearly interpolated: relative error below 1e-6)
 /// `exp(-d^2 / (2 r^2))` of the chord distance `d` to each cell centre.
-pub(crate) fn kernel_cells(grid: NdfGrid, centres: &[Vec3], h: Vec3, r: f32, out: &mut Vec<(u32, f32)>) {
+/// The cells come ring by ring and, within a ring, sector by sector from
+/// the first one in reach (the order the sums over them add in).
+pub(crate) fn kernel_cells(kg: &KernelGrid, h: Vec3, r: f32, out: &mut Vec<(u32, f32)>) {
+    let grid = kg.grid;
     let (nt, np) = (grid.n_theta as usize, grid.n_phi as usize);
     let reach = 2.5 * r;
+    let reach2 = reach * reach;
     let theta_h = brdf::frame::sin2_theta(h).sqrt().atan2(h.z);
     let phi_h = brdf::frame::phi(h);
     let inv2r2 = 1.0 / (2.0 * r * r);
-    let lut = gauss_lut();
+    let steps = gauss_steps();
     let scale = GAUSS_LUT as f32 / GAUSS_MAX_X;
-    for t in 0..nt {
+    let x_max = GAUSS_LUT as f32 - 1e-3;
+    let dphi = grid.dphi();
+    // The rings that meet `[theta_h - reach, theta_h + reach]` are
+    // consecutive (the edges increase with `t`): start two rings before
+    // the first one's estimate, test each ring exactly, stop past the last.
+    let lo = theta_h - reach;
+    let first = if lo > 0.0 { ((lo / std::f32::consts::FRAC_PI_2).sqrt() * nt as f32) as usize } else { 0 };
+    for t in first.saturating_sub(2).min(nt)..nt {
         let (t0, t1) = (grid.theta_edge(t), grid.theta_edge(t + 1));
-        if t1 < theta_h - reach || t0 > theta_h + reach {
+        if t0 > theta_h + reach {
+            break;
+        }
+        if t1 < lo {
             continue;
         }
-        let s = t0.sin().max(crate::tol::MIN_RING_SIN);
+        let s = kg.ring_sin[t];
         let half = if s <= reach { std::f32::consts::PI } else { (reach / s).asin() * 1.3 };
         let (p_lo, p_hi) = if half >= std::f32::consts::PI {
             (0i64, np as i64 - 1)
         } else {
-            let c = phi_h / grid.dphi() - 0.5;
-            ((c - half / grid.dphi()).floor() as i64, (c + half / grid.dphi()).ceil() as i64)
+            let c = phi_h / dphi - 0.5;
+            (brdf::frame::floor(c - half / dphi) as i64, brdf::frame::ceil(c + half / dphi) as i64)
         };
-        for pp in p_lo..=p_hi {
-            let p = pp.rem_euclid(np as i64) as usize;
-            let c = t * np + p;
-            let d2 = (h - centres[c]).length_squared();
-            if d2 <= reach * reach {
-                let x = (d2 * inv2r2 * scale).min(GAUSS_LUT as f32 - 1e-3);
+        let ring = &kg.centres[t * np..(t + 1) * np];
+        // The sector of `p_lo`, then one step at a time around the ring
+        // (no division per cell).
+        let mut p = brdf::ndf::wrap(p_lo, np);
+        for _ in p_lo..=p_hi {
+            let d2 = (h - ring[p]).length_squared();
+            if d2 <= reach2 {
+                let x = (d2 * inv2r2 * scale).min(x_max);
                 let k = x as usize;
                 let f = x - k as f32;
-                out.push((c as u32, lut[k] + (lut[k + 1] - lut[k]) * f));
+                let (v, step) = steps[k];
+                out.push(((t * np + p) as u32, v + step * f));
+            }
+            p += 1;
+            if p == np {
+                p = 0;
             }
         }
     }
@@ -294,7 +345,7 @@ pub(crate) enum Kernels<'a> {
     /// Computed again at every read from each sample's half vector and
     /// kernel width: a pool's millions of samples would hold gigabytes of
     /// cells.
-    Computed { centres: &'a [Vec3], h_r: &'a [(Vec3, f32)] },
+    Computed { kg: &'a KernelGrid, h_r: &'a [(Vec3, f32)] },
 }
 
 impl Kernels<'_> {
@@ -342,10 +393,10 @@ impl Kernels<'_> {
     ) -> ([(u32, f32); 4], &'s [(u32, f32)]) {
         match self {
             Kernels::Stored { cells, offsets, corners: c } => (c[k], &cells[offsets[k]..offsets[k + 1]]),
-            Kernels::Computed { centres, h_r } => {
+            Kernels::Computed { kg, h_r } => {
                 let (h, r) = h_r[k];
                 scratch.clear();
-                kernel_cells(grid, centres, h, r, scratch);
+                kernel_cells(kg, h, r, scratch);
                 (corners(grid, h), scratch.as_slice())
             }
         }
@@ -665,23 +716,23 @@ fn fit_point_with(
     let cl = lum(colour).max(crate::tol::MIN_LUMINANCE);
     colour.iter_mut().for_each(|c| *c = finite_or(*c / cl, 1.0).max(0.0));
     // Half vectors and kernel cells are fixed across iterations.
-    if s.centres.len() != grid.len() {
-        s.centres = (0..grid.len()).map(|c| grid.direction(c / grid.n_phi as usize, c % grid.n_phi as usize)).collect();
-    }
     s.h.clear();
     s.corners.clear();
     s.cells.clear();
     s.offsets.clear();
     s.offsets.push(0);
-    let centres = std::mem::take(&mut s.centres);
+    let kg = match s.kernel_grid.take() {
+        Some(kg) if kg.grid == grid => kg,
+        _ => KernelGrid::new(grid),
+    };
     for x in &ps.samples {
         let h = (x.i + ps.o).normalize_or(Vec3::Z);
         s.h.push(h);
         s.corners.push(corners(grid, h));
-        kernel_cells(grid, &centres, h, x.kernel_rad.max(crate::tol::MIN_KERNEL_RAD), &mut s.cells);
+        kernel_cells(&kg, h, x.kernel_rad.max(crate::tol::MIN_KERNEL_RAD), &mut s.cells);
         s.offsets.push(s.cells.len());
     }
-    s.centres = centres;
+    s.kernel_grid = Some(kg);
     let spec = std::mem::take(&mut s.spec);
     prepare(grid, settings, s);
     // 3-5. Splat, normalise, mask, repeat (at most `iterations` masking steps).
@@ -834,6 +885,86 @@ mod tests {
             };
             let m = min_significant(n);
             assert!(tail(m) <= 1e-4 && tail(m - 1) > 1e-4, "{n}: {m}");
+        }
+    }
+}
+
+#[cfg(test)]
+mod kernel_tests {
+    use super::*;
+
+    /// [`kernel_cells`] as first written: every ring tested, the ring's
+    /// sines from the library, one division per sector. The fast one must
+    /// give its cells, order and weights bit for bit (the splat's sums add
+    /// in that order).
+    fn direct_scan(grid: NdfGrid, centres: &[Vec3], h: Vec3, r: f32, out: &mut Vec<(u32, f32)>) {
+        let (nt, np) = (grid.n_theta as usize, grid.n_phi as usize);
+        let reach = 2.5 * r;
+        let theta_h = brdf::frame::sin2_theta(h).sqrt().atan2(h.z);
+        let phi_h = brdf::frame::phi(h);
+        let inv2r2 = 1.0 / (2.0 * r * r);
+        let lut = gauss_lut();
+        let scale = GAUSS_LUT as f32 / GAUSS_MAX_X;
+        for t in 0..nt {
+            let (t0, t1) = (grid.theta_edge(t), grid.theta_edge(t + 1));
+            if t1 < theta_h - reach || t0 > theta_h + reach {
+                continue;
+            }
+            let s = t0.sin().max(crate::tol::MIN_RING_SIN);
+            let half = if s <= reach { std::f32::consts::PI } else { (reach / s).asin() * 1.3 };
+            let (p_lo, p_hi) = if half >= std::f32::consts::PI {
+                (0i64, np as i64 - 1)
+            } else {
+                let c = phi_h / grid.dphi() - 0.5;
+                ((c - half / grid.dphi()).floor() as i64, (c + half / grid.dphi()).ceil() as i64)
+            };
+            for pp in p_lo..=p_hi {
+                let p = pp.rem_euclid(np as i64) as usize;
+                let c = t * np + p;
+                let d2 = (h - centres[c]).length_squared();
+                if d2 <= reach * reach {
+                    let x = (d2 * inv2r2 * scale).min(GAUSS_LUT as f32 - 1e-3);
+                    let k = x as usize;
+                    let f = x - k as f32;
+                    out.push((c as u32, lut[k] + (lut[k + 1] - lut[k]) * f));
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn kernel_cells_are_the_direct_scans_bit_for_bit() {
+        let mut state = 12345u64;
+        let mut rnd = || {
+            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            ((state >> 40) as f32) / (1u64 << 24) as f32
+        };
+        for grid in [NdfGrid { n_theta: 16, n_phi: 48 }, NdfGrid::DEFAULT, NdfGrid { n_theta: 64, n_phi: 192 }] {
+            let kg = KernelGrid::new(grid);
+            let centres: Vec<Vec3> =
+                (0..grid.len()).map(|c| grid.direction(c / grid.n_phi as usize, c % grid.n_phi as usize)).collect();
+            let (mut fast, mut direct) = (Vec::new(), Vec::new());
+            let mut cells = 0;
+            for k in 0..60_000 {
+                // Half vectors over the hemisphere, the pole and the horizon
+                // included, and kernels from a fraction of a cell to wide.
+                let theta = match k % 10 {
+                    0 => rnd() * 1e-3,
+                    1 => std::f32::consts::FRAC_PI_2 - rnd() * 1e-3,
+                    _ => rnd() * std::f32::consts::FRAC_PI_2,
+                };
+                let h = brdf::frame::spherical(theta, rnd() * std::f32::consts::TAU);
+                let r = crate::tol::MIN_KERNEL_RAD.max(0.002 + 0.2 * rnd() * rnd());
+                fast.clear();
+                direct.clear();
+                kernel_cells(&kg, h, r, &mut fast);
+                direct_scan(grid, &centres, h, r, &mut direct);
+                let bits = |v: &[(u32, f32)]| v.iter().map(|&(c, w)| (c, w.to_bits())).collect::<Vec<_>>();
+                assert_eq!(bits(&fast), bits(&direct), "h {h:?}, r {r}, grid {grid:?}");
+                cells += fast.len();
+            }
+            // The kernels reached cells: the comparison compared something.
+            assert!(cells > 60_000, "{cells} cells");
         }
     }
 }

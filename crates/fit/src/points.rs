@@ -55,6 +55,10 @@ pub fn gather_choice_held_out(ctx: &FitContext, store: &SampleStore, p: usize, s
     gather_where(ctx, store, p, settings, |q| settings.choice_holds_out(&ctx.inputs.plan, q))
 }
 
+/// How many lights ahead [`gather_where`] asks for a point's samples
+/// ([`SampleStore::prefetch`]).
+const PREFETCH_LIGHTS: usize = 8;
+
 fn gather_where(
     ctx: &FitContext,
     store: &SampleStore,
@@ -72,6 +76,7 @@ fn gather_where(
     }
     ps.samples.reserve(ctx.n_lights());
     for q in 0..ctx.n_lights() {
+        store.prefetch(q + PREFETCH_LIGHTS, p);
         if !keep(q) {
             continue;
         }

@@ -65,6 +65,30 @@ impl SampleStore {
         ([r[0].to_f32(), r[1].to_f32(), r[2].to_f32()], self.flags[k])
     }
 
+    /// Ask the processor to start loading the sample of `light` at `point`
+    /// (a hint: it changes no value). A point's samples lie a whole row
+    /// of points apart, one cache line each, too far apart for the
+    /// hardware's own prefetcher; a loop over a point's lights asks a few
+    /// lights ahead.
+    #[inline]
+    pub fn prefetch(&self, light: usize, point: usize) {
+        #[cfg(target_arch = "x86_64")]
+        {
+            use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
+            let k = light * self.n_points + point;
+            if k < self.flags.len() {
+                // SAFETY: a prefetch never faults and reads nothing into
+                // the program; both pointers are inside their vectors.
+                unsafe {
+                    _mm_prefetch::<_MM_HINT_T0>(self.rho.as_ptr().add(k).cast());
+                    _mm_prefetch::<_MM_HINT_T0>(self.flags.as_ptr().add(k).cast());
+                }
+            }
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        let _ = (light, point);
+    }
+
     /// Mutable access to one light's row (for ingest).
     pub fn row_mut(&mut self, light: usize) -> (&mut [[f16; 3]], &mut [u8]) {
         let r = light * self.n_points..(light + 1) * self.n_points;

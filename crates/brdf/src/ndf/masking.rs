@@ -178,10 +178,10 @@ impl MaskingTable {
         let j0 = (x as usize).min(self.n_theta_k - 2);
         let fj = (x - j0 as f32).clamp(0.0, 1.0);
         let y = frame::phi(v) / std::f32::consts::TAU * self.n_phi as f32 - 0.5;
-        let yf = y.floor();
+        let yf = frame::floor(y);
         let fq = y - yf;
-        let q0 = (yf as i64).rem_euclid(self.n_phi as i64) as usize;
-        let q1 = (q0 + 1) % self.n_phi;
+        let q0 = wrap(yf as i64, self.n_phi);
+        let q1 = if q0 + 1 == self.n_phi { 0 } else { q0 + 1 };
         let s = |j: usize, q: usize| self.sigma[j * self.n_phi + q];
         let a = s(j0, q0) * (1.0 - fq) + s(j0, q1) * fq;
         let b = s(j0 + 1, q0) * (1.0 - fq) + s(j0 + 1, q1) * fq;
@@ -200,6 +200,29 @@ impl MaskingTable {
     }
 }
 
+/// `i` modulo `n` in `0..n`; the division only for an `i` outside
+/// `0..n` (this sits in the masking term's and the tables' inner loops).
+#[inline]
+pub fn wrap(i: i64, n: usize) -> usize {
+    if (0..n as i64).contains(&i) { i as usize } else { i.rem_euclid(n as i64) as usize }
+}
+
 /// Floor for a projected area that is not finite (cannot happen for finite
 /// tables; kept so no NaN can escape).
 const MIN_SIGMA: f32 = 1e-6;
+
+#[cfg(test)]
+mod tests {
+    use super::wrap;
+
+    #[test]
+    fn wrap_is_the_euclidean_remainder() {
+        for n in [1usize, 4, 7, 96, 4096] {
+            for i in -3 * n as i64 - 2..3 * n as i64 + 2 {
+                assert_eq!(wrap(i, n), i.rem_euclid(n as i64) as usize, "wrap({i}, {n})");
+            }
+        }
+        assert_eq!(wrap(i64::MIN, 96), i64::MIN.rem_euclid(96) as usize);
+        assert_eq!(wrap(i64::MAX, 96), i64::MAX.rem_euclid(96) as usize);
+    }
+}

@@ -26,12 +26,12 @@ mod tabulated;
 
 pub use beckmann::{Beckmann, BeckmannLobe};
 pub use ggx::Ggx;
-pub use masking::{MaskingOperator, MaskingTable};
+pub use masking::{MaskingOperator, MaskingTable, wrap};
 pub use mixture::Mixture;
 pub use power_cosine::PowerCosine;
 pub use set::TableSet;
 pub use sheen::Sheen;
-pub use table::{Coverage, NdfGrid, NdfTable, TableError};
+pub use table::{Coverage, NdfGrid, NdfTable, TableError, rotation_sources};
 pub use tabulated::TabulatedNdf;
 
 use glam::{Vec2, Vec3};

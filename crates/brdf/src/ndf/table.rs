@@ -22,6 +22,21 @@ use thiserror::Error;
 
 use crate::frame;
 
+/// The source sectors of each destination sector `p` in `0..n_phi` of a
+/// ring turned by `s0` whole sectors (`s0 < n_phi`) and a fraction toward
+/// the next: `(p - s0, p - s0 - 1)` modulo `n_phi`, in order of `p`. They
+/// step around the ring, with no division per sector (the rotations of
+/// synthesis' search and scoring run over every cell of many tables).
+pub fn rotation_sources(n_phi: usize, s0: usize) -> impl Iterator<Item = (usize, usize)> {
+    let step = move |i: usize| if i + 1 == n_phi { 0 } else { i + 1 };
+    let (mut a, mut b) = ((n_phi - s0) % n_phi, (2 * n_phi - s0 - 1) % n_phi);
+    (0..n_phi).map(move |_| {
+        let out = (a, b);
+        (a, b) = (step(a), step(b));
+        out
+    })
+}
+
 /// Errors from building or reading a table.
 #[derive(Debug, Error, PartialEq)]
 pub enum TableError {
@@ -156,9 +171,10 @@ impl NdfGrid {
         let tu = (u - 0.5).clamp(0.0, (nt - 1) as f32);
         let t0 = (tu as usize).min(nt - 1);
         let pp = p - 0.5;
-        let pf = pp.floor();
-        let p0 = (pf as i64).rem_euclid(np as i64) as usize;
-        Bilinear { t: [t0, (t0 + 1).min(nt - 1)], ft: tu - t0 as f32, p: [p0, (p0 + 1) % np], fp: pp - pf }
+        let pf = frame::floor(pp);
+        let p0 = super::masking::wrap(pf as i64, np);
+        let p1 = if p0 + 1 == np { 0 } else { p0 + 1 };
+        Bilinear { t: [t0, (t0 + 1).min(nt - 1)], ft: tu - t0 as f32, p: [p0, p1], fp: pp - pf }
     }
 
     /// The cell holding a direction at or above the horizon.
@@ -392,15 +408,13 @@ impl NdfTable {
     pub fn rotated(&self, angle_rad: f32) -> NdfTable {
         let np = self.grid.n_phi as usize;
         let shift = angle_rad / self.grid.dphi();
-        let s0 = shift.floor();
+        let s0 = frame::floor(shift);
         let f = shift - s0;
-        let s0 = (s0 as i64).rem_euclid(np as i64) as usize;
+        let s0 = super::masking::wrap(s0 as i64, np);
         let mut out = NdfTable::zeros(self.grid);
         for t in 0..self.grid.n_theta as usize {
-            for p in 0..np {
-                // Source sectors for destination p are p - s0 and p - s0 - 1.
-                let a = self.grid.index(t, (p + np - s0) % np);
-                let b = self.grid.index(t, (p + 2 * np - s0 - 1) % np);
+            for (p, (a, b)) in rotation_sources(np, s0).enumerate() {
+                let (a, b) = (self.grid.index(t, a), self.grid.index(t, b));
                 let dst = self.grid.index(t, p);
                 out.values[dst] = self.values[a] * (1.0 - f) + self.values[b] * f;
                 let covered =
@@ -453,6 +467,18 @@ pub const MIN_NORMALISABLE: f32 = 1e-12;
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn rotation_sources_are_the_sectors_behind_by_the_shift() {
+        for np in [1usize, 4, 5, 96, 97] {
+            for s0 in 0..np {
+                let got: Vec<(usize, usize)> = rotation_sources(np, s0).collect();
+                let want: Vec<(usize, usize)> =
+                    (0..np).map(|p| ((p + np - s0) % np, (p + 2 * np - s0 - 1) % np)).collect();
+                assert_eq!(got, want, "n_phi {np}, shift {s0}");
+            }
+        }
+    }
 
     #[test]
     fn cos_measure_sums_to_pi() {

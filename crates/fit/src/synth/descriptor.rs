@@ -81,16 +81,15 @@ impl Core {
         let (np, g) = (self.grid.n_phi as usize, &self.grid);
         out.iter_mut().for_each(|v| *v = 0.0);
         let mut weights = vec![0.0f32; self.len()];
-        let s0 = shift.floor();
+        let s0 = brdf::frame::floor(shift);
         let f = shift - s0;
-        let s0 = (s0 as i64).rem_euclid(np as i64) as usize;
+        let s0 = brdf::ndf::wrap(s0 as i64, np);
         for t_ in 0..self.rings {
             let band = t_ * self.bands / self.rings;
             let w = g.cos_measure(t_);
-            for p in 0..np {
+            for (p, (a, b)) in brdf::ndf::rotation_sources(np, s0).enumerate() {
                 // Rotated value at p: source sectors p - s0 and p - s0 - 1.
-                let a = t.at(t_, (p + np - s0) % np);
-                let b = t.at(t_, (p + 2 * np - s0 - 1) % np);
+                let (a, b) = (t.at(t_, a), t.at(t_, b));
                 let v = a * (1.0 - f) + b * f;
                 let k = band * self.sectors + p * self.sectors / np;
                 out[k] += w * v;

@@ -252,18 +252,16 @@ pub fn score_at(
     min_overlap: f32,
 ) -> Option<Match> {
     let np = grid.n_phi as usize;
-    let s0f = shift.floor();
+    let s0f = brdf::frame::floor(shift);
     let f = shift - s0f;
-    let s0 = (s0f as i64).rem_euclid(np as i64) as usize;
+    let s0 = brdf::ndf::wrap(s0f as i64, np);
     let (mut a, mut b, mut c, mut n, mut gain, mut observed, mut missing) = (0.0f64, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
     for t in 0..grid.n_theta as usize {
         let w = grid.cos_measure(t) as f64;
         let row = t * np;
         let (mut ra, mut rb, mut rc, mut rn, mut rg, mut ro, mut rm) = (0.0f32, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
-        for p in 0..np {
-            let k = row + p;
-            let i0 = row + (p + np - s0) % np;
-            let i1 = row + (p + 2 * np - s0 - 1) % np;
+        for (p, (i0, i1)) in brdf::ndf::rotation_sources(np, s0).enumerate() {
+            let (k, i0, i1) = (row + p, row + i0, row + i1);
             let mq = if f == 0.0 { candidate.mask[i0] } else { candidate.mask[i0] * candidate.mask[i1] };
             let dq = candidate.values[i0] * (1.0 - f) + candidate.values[i1] * f;
             let (mp, dp) = (query.mask[k], query.values[k]);
