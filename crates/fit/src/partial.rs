@@ -167,6 +167,8 @@ pub struct Scratch {
     offsets: Vec<usize>,
     /// The last grid's cell centres and ring sines.
     kernel_grid: Option<KernelGrid>,
+    /// Each sample's light direction located in the masking tables.
+    mask_cells: Vec<brdf::ndf::MaskingCell>,
     sum_w: Vec<f32>,
     sum_wd: Vec<f32>,
     /// Fixed per point: covered cells, push-pull confidence, per-sample
@@ -280,6 +282,15 @@ pub(crate) fn kernel_cells(kg: &KernelGrid, h: Vec3, r: f32, out: &mut Vec<(u32,
     let scale = GAUSS_LUT as f32 / GAUSS_MAX_X;
     let x_max = GAUSS_LUT as f32 - 1e-3;
     let dphi = grid.dphi();
+    let weight = |d2: f32| {
+        let x = (d2 * inv2r2 * scale).min(x_max);
+        let k = x as usize;
+        let f = x - k as f32;
+        let (v, step) = steps[k];
+        v + step * f
+    };
+    let next = |p: usize| if p + 1 == np { 0 } else { p + 1 };
+    let prev = |p: usize| if p == 0 { np - 1 } else { p - 1 };
     // The rings that meet `[theta_h - reach, theta_h + reach]` are
     // consecutive (the edges increase with `t`): start two rings before
     // the first one's estimate, test each ring exactly, stop past the last.
@@ -294,6 +305,54 @@ pub(crate) fn kernel_cells(kg: &KernelGrid, h: Vec3, r: f32, out: &mut Vec<(u32,
             continue;
         }
         let s = kg.ring_sin[t];
+        let ring = &kg.centres[t * np..(t + 1) * np];
+        let d2_at = |p: usize| (h - ring[p]).length_squared();
+        if s > 2.0 * reach {
+            // A centre of this ring within reach is within `asin(reach /
+            // s)` of `phi_h` in azimuth (its chord is at least `sin(theta)
+            // |sin(dphi)|`), and along the ring the chord grows with the
+            // azimuth away from `phi_h`, by steps far above rounding here
+            // (`sin(theta_h) > s / 2`: the chord is at least `|sin(theta)
+            // - sin(theta_h)|`): the cells in reach are one arc around the
+            // nearest centre. Find it and walk out from it.
+            let pc = brdf::ndf::wrap(brdf::frame::floor(phi_h / dphi) as i64, np);
+            let (mut start, mut d2_start) = (pc, d2_at(pc));
+            for p in [prev(pc), next(pc)] {
+                let d2 = d2_at(p);
+                if d2 < d2_start {
+                    (start, d2_start) = (p, d2);
+                }
+            }
+            if d2_start > reach2 {
+                continue;
+            }
+            let mut left = start;
+            for _ in 0..np / 2 {
+                let p = prev(left);
+                if d2_at(p) > reach2 {
+                    break;
+                }
+                left = p;
+            }
+            // From the arc's first cell to `start`, then on while in reach.
+            let mut p = left;
+            while p != start {
+                out.push(((t * np + p) as u32, weight(d2_at(p))));
+                p = next(p);
+            }
+            out.push(((t * np + start) as u32, weight(d2_start)));
+            for _ in 0..np / 2 {
+                p = next(p);
+                let d2 = d2_at(p);
+                if d2 > reach2 {
+                    break;
+                }
+                out.push(((t * np + p) as u32, weight(d2)));
+            }
+            continue;
+        }
+        // Near the pole (or a kernel as wide as the ring): every sector in
+        // the azimuth the kernel can reach, in order from its first.
         let half = if s <= reach { std::f32::consts::PI } else { (reach / s).asin() * 1.3 };
         let (p_lo, p_hi) = if half >= std::f32::consts::PI {
             (0i64, np as i64 - 1)
@@ -301,23 +360,13 @@ pub(crate) fn kernel_cells(kg: &KernelGrid, h: Vec3, r: f32, out: &mut Vec<(u32,
             let c = phi_h / dphi - 0.5;
             (brdf::frame::floor(c - half / dphi) as i64, brdf::frame::ceil(c + half / dphi) as i64)
         };
-        let ring = &kg.centres[t * np..(t + 1) * np];
-        // The sector of `p_lo`, then one step at a time around the ring
-        // (no division per cell).
         let mut p = brdf::ndf::wrap(p_lo, np);
         for _ in p_lo..=p_hi {
-            let d2 = (h - ring[p]).length_squared();
+            let d2 = d2_at(p);
             if d2 <= reach2 {
-                let x = (d2 * inv2r2 * scale).min(x_max);
-                let k = x as usize;
-                let f = x - k as f32;
-                let (v, step) = steps[k];
-                out.push(((t * np + p) as u32, v + step * f));
+                out.push(((t * np + p) as u32, weight(d2)));
             }
-            p += 1;
-            if p == np {
-                p = 0;
-            }
+            p = next(p);
         }
     }
 }
@@ -733,6 +782,11 @@ fn fit_point_with(
         s.offsets.push(s.cells.len());
     }
     s.kernel_grid = Some(kg);
+    // Where each light (and the view) falls in the masking tables, for
+    // every masking step below.
+    s.mask_cells.clear();
+    s.mask_cells.extend(ps.samples.iter().map(|x| op.locate(x.i)));
+    let o_cell = op.locate(ps.o);
     let spec = std::mem::take(&mut s.spec);
     prepare(grid, settings, s);
     // 3-5. Splat, normalise, mask, repeat (at most `iterations` masking steps).
@@ -754,8 +808,8 @@ fn fit_point_with(
         s.sigma_i.clear();
         let sigma_o = match start {
             Some(m) => {
-                s.sigma_i.extend(ps.samples.iter().map(|x| m.projected_area(x.i)));
-                m.projected_area(ps.o)
+                s.sigma_i.extend(s.mask_cells.iter().map(|c| m.projected_area_at(c)));
+                m.projected_area_at(&o_cell)
             }
             None => {
                 s.sigma_i.extend(ps.samples.iter().map(|x| x.i.z));
@@ -772,8 +826,8 @@ fn fit_point_with(
             }
             let m = op.projected_areas(&cur.table);
             s.sigma_i.clear();
-            s.sigma_i.extend(ps.samples.iter().map(|x| m.projected_area(x.i)));
-            let next = splat_once(grid, ps, &spec, m.projected_area(ps.o), settings.bias_passes, s);
+            s.sigma_i.extend(s.mask_cells.iter().map(|c| m.projected_area_at(c)));
+            let next = splat_once(grid, ps, &spec, m.projected_area_at(&o_cell), settings.bias_passes, s);
             let change = next.table.rel_l2(&cur.table, None).unwrap_or(0.0);
             cur = next;
             last = Some(m);
@@ -939,7 +993,12 @@ mod kernel_tests {
             state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
             ((state >> 40) as f32) / (1u64 << 24) as f32
         };
-        for grid in [NdfGrid { n_theta: 16, n_phi: 48 }, NdfGrid::DEFAULT, NdfGrid { n_theta: 64, n_phi: 192 }] {
+        for grid in [
+            NdfGrid { n_theta: 16, n_phi: 48 },
+            NdfGrid::DEFAULT,
+            NdfGrid { n_theta: 64, n_phi: 192 },
+            NdfGrid { n_theta: 8, n_phi: 4096 },
+        ] {
             let kg = KernelGrid::new(grid);
             let centres: Vec<Vec3> =
                 (0..grid.len()).map(|c| grid.direction(c / grid.n_phi as usize, c % grid.n_phi as usize)).collect();

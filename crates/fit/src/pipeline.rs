@@ -16,8 +16,9 @@
 //!    point, starting from the points' own tables ([`analytic_stage`]).
 //! 6. **Model choice** (with the analytic fits): stages 2-5 run a second
 //!    time without every k-th gantry step (on a quarter of the points of a
-//!    large grid), and each region takes the simplest class that predicts
-//!    those steps as well as any ([`crate::select`]).
+//!    large grid, and with only the analytic models the choice weighs), and
+//!    each region takes the simplest class that predicts those steps as
+//!    well as any ([`crate::select`]).
 //!
 //! Between stages (and between analytic models) the caller's `stop` is
 //! polled; a stop ends the run with [`FitError::Stopped`].
@@ -386,10 +387,17 @@ fn choice_scores(
     let g = ctx.inputs.grid;
     let stride = (g.cols >= CHOICE_STRIDE_MIN_SIDE && g.rows >= CHOICE_STRIDE_MIN_SIDE).then_some(2);
     let refit = FitSettings { choice_holdout: Some(held), point_stride: stride, ..settings.clone() };
+    // Only the candidates' scores are read; each model's fit is its own
+    // (the clusters and samples they share do not depend on the list).
+    let candidates = AnalyticSettings {
+        models: a.models.iter().copied().filter(|&m| crate::select::is_candidate(m)).collect(),
+        ..a.clone()
+    };
+    let refit_stages = Stages { analytic: Some(candidates), ..stages.clone() };
     let mut ignored = Timings::default();
     ctx.progress.begin(crate::FitStage::Choice, 0);
     ctx.progress.set_refitting(true);
-    let h = fit_stages(ctx, store, &refit, stages, Some(&fitted.models), stop, Instant::now(), &mut ignored);
+    let h = fit_stages(ctx, store, &refit, &refit_stages, Some(&fitted.models), stop, Instant::now(), &mut ignored);
     ctx.progress.set_refitting(false);
     let h = h?;
     ctx.progress.begin(crate::FitStage::Choice, ctx.n_points() as u64);

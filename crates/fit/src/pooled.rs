@@ -61,13 +61,15 @@
 //! points carry [`point_flag::POOLED`].
 
 use brdf::fresnel;
-use brdf::ndf::{Coverage, MaskingOperator, MaskingTable, NdfTable, TableSet};
+use brdf::ndf::{Coverage, MaskingCell, MaskingOperator, MaskingTable, NdfTable, TableSet};
 use glam::Vec3;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::context::FitContext;
-use crate::partial::{KernelGrid, Kernels, PointSamples, SplatLayout, Splatted, close, join, kernel_cells, lum, point_flag};
+use crate::partial::{
+    KernelGrid, Kernels, PointSamples, SplatLayout, Splatted, close, join, kernel_cells, lum, point_flag,
+};
 use crate::points::{PointMaps, gather};
 use crate::pushpull::push_pull;
 use crate::samples::SampleStore;
@@ -120,7 +122,8 @@ const TEST_POINTS: usize = 256;
 /// One sample of a member, as pooling reads it.
 #[derive(Clone, Copy, Debug)]
 struct PoolSample {
-    i: Vec3,
+    /// The light's direction located in the masking tables.
+    i: MaskingCell,
     /// Half vector.
     h: Vec3,
     /// Scalar specular (luminance reflectance less the diffuse).
@@ -168,7 +171,7 @@ pub fn pool(
         .par_iter()
         .map(|&p| {
             let own = op.projected_areas(&maps_ref.tables.get(p));
-            Member::new(p, gather(ctx, store, p, settings), maps_ref, &own)
+            Member::new(p, gather(ctx, store, p, settings), maps_ref, op, &own)
         })
         .collect();
     let core = crate::synth::descriptor::Core::find(&maps.tables, &eligible, DESCRIPTOR);
@@ -297,10 +300,7 @@ const MAX_STORED_CELLS: usize = 1 << 24;
 /// Every sample's kernel cells, offsets and corners, computed once; `None`
 /// when they would be more than [`MAX_STORED_CELLS`].
 #[allow(clippy::type_complexity)]
-fn store_kernels(
-    kg: &KernelGrid,
-    h_r: &[(Vec3, f32)],
-) -> Option<(Vec<(u32, f32)>, Vec<usize>, Vec<[(u32, f32); 4]>)> {
+fn store_kernels(kg: &KernelGrid, h_r: &[(Vec3, f32)]) -> Option<(Vec<(u32, f32)>, Vec<usize>, Vec<[(u32, f32); 4]>)> {
     let grid = kg.grid;
     let (mut cells, mut offsets, mut corners) = (Vec::new(), vec![0], Vec::with_capacity(h_r.len()));
     for &(h, r) in h_r {
@@ -460,7 +460,7 @@ fn estimate(settings: &FitSettings, op: &MaskingOperator, members: &[Member], cl
             .map(|&j| {
                 let mb = &members[j];
                 let sigma_o = m.projected_area(mb.o);
-                let masking: Vec<f32> = mb.samples.iter().map(|x| 4.0 * m.projected_area(x.i) * sigma_o).collect();
+                let masking: Vec<f32> = mb.samples.iter().map(|x| 4.0 * m.projected_area_at(&x.i) * sigma_o).collect();
                 (Fit::with(mb, &table, &masking), masking)
             })
             .unzip();
@@ -509,7 +509,7 @@ fn choose(
 }
 
 impl Member {
-    fn new(p: usize, ps: PointSamples, maps: &PointMaps, own: &MaskingTable) -> Self {
+    fn new(p: usize, ps: PointSamples, maps: &PointMaps, op: &MaskingOperator, own: &MaskingTable) -> Self {
         let (kd, eta) = (maps.kd[p], maps.eta[p]);
         let rho_d = kd.map(|kd| kd / std::f32::consts::PI);
         let f0 = fresnel::dielectric_f0(eta).max(crate::tol::MIN_DIVISOR);
@@ -520,7 +520,7 @@ impl Member {
             .map(|x| {
                 let h = (x.i + ps.o).normalize_or(Vec3::Z);
                 PoolSample {
-                    i: x.i,
+                    i: op.locate(x.i),
                     h,
                     spec: lum([x.rho[0] - rho_d[0], x.rho[1] - rho_d[1], x.rho[2] - rho_d[2]]),
                     var: x.var,
@@ -549,7 +549,7 @@ struct Fit {
 impl Fit {
     fn of(mb: &Member, table: &NdfTable, m: &MaskingTable) -> Self {
         let sigma_o = m.projected_area(mb.o);
-        Self::with_each(mb, table, mb.samples.iter().map(|x| 4.0 * m.projected_area(x.i) * sigma_o))
+        Self::with_each(mb, table, mb.samples.iter().map(|x| 4.0 * m.projected_area_at(&x.i) * sigma_o))
     }
 
     /// The same under the point's own table's masking, which the member

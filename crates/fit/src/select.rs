@@ -271,6 +271,13 @@ pub struct Selection {
 const ISOTROPIC_MODELS: [AnalyticModel; 1] = [AnalyticModel::CookTorrance];
 const ANISOTROPIC_MODELS: [AnalyticModel; 2] = [AnalyticModel::GgxAniso, AnalyticModel::BeckmannAniso];
 
+/// Whether the choice reads `m`'s scores (an isotropic or anisotropic
+/// candidate); the others' are never read, so the choice's refit need not
+/// fit them.
+pub fn is_candidate(m: AnalyticModel) -> bool {
+    ISOTROPIC_MODELS.contains(&m) || ANISOTROPIC_MODELS.contains(&m)
+}
+
 /// Choose per cluster (`cluster[p]`, `u32::MAX` or `>= clusters` for
 /// points outside every cluster) from `scores`; `None` if neither an
 /// isotropic nor an anisotropic analytic model was scored.

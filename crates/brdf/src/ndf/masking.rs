@@ -158,6 +158,48 @@ impl MaskingOperator {
     }
 }
 
+/// Where a direction falls among the directions of a masking table: the
+/// two rings and sectors around it, the fractions toward the second, and
+/// its `z`. It depends on the operator's grid only, so a direction read
+/// under many tables of one operator (a sample's `sigma(i)` at every
+/// masking iteration) is located once.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct MaskingCell {
+    // Rings and sectors fit 16 bits (`NdfGrid::new`: at most 512 rings,
+    // so 1,025 direction rings, and 4,096 sectors).
+    j0: u16,
+    q0: u16,
+    q1: u16,
+    fj: f32,
+    fq: f32,
+    z: f32,
+}
+
+impl MaskingOperator {
+    /// Where `v` falls in this operator's tables ([`MaskingTable::projected_area_at`]).
+    pub fn locate(&self, v: Vec3) -> MaskingCell {
+        locate(self.n_theta_k, self.grid.n_phi as usize, v)
+    }
+}
+
+/// [`MaskingOperator::locate`] on a grid of `n_theta_k` rings of `n_phi`
+/// sectors.
+fn locate(n_theta_k: usize, n_phi: usize, v: Vec3) -> MaskingCell {
+    if v.z <= 0.0 {
+        return MaskingCell { z: v.z, ..MaskingCell::default() };
+    }
+    let theta = frame::sin2_theta(v).sqrt().atan2(v.z);
+    let x = theta / FRAC_PI_2 * (n_theta_k - 1) as f32;
+    let j0 = (x as usize).min(n_theta_k - 2);
+    let fj = (x - j0 as f32).clamp(0.0, 1.0);
+    let y = frame::phi(v) / std::f32::consts::TAU * n_phi as f32 - 0.5;
+    let yf = frame::floor(y);
+    let fq = y - yf;
+    let q0 = wrap(yf as i64, n_phi);
+    let q1 = if q0 + 1 == n_phi { 0 } else { q0 + 1 };
+    MaskingCell { j0: j0 as u16, q0: q0 as u16, q1: q1 as u16, fj, fq, z: v.z }
+}
+
 /// `sigma(k)` tabulated over directions, with interpolation.
 #[derive(Clone, Debug, PartialEq)]
 pub struct MaskingTable {
@@ -170,23 +212,22 @@ impl MaskingTable {
     /// Projected area toward `v`, bilinear in `(theta, phi)` and never below
     /// `v.z` (see [`super::Ndf::projected_area`]). 1 for `v.z <= 0`.
     pub fn projected_area(&self, v: Vec3) -> f32 {
-        if v.z <= 0.0 {
+        self.projected_area_at(&locate(self.n_theta_k, self.n_phi, v))
+    }
+
+    /// [`MaskingTable::projected_area`] toward a direction located once
+    /// ([`MaskingOperator::locate`], by this table's operator): the same
+    /// value, bit for bit.
+    pub fn projected_area_at(&self, c: &MaskingCell) -> f32 {
+        if c.z <= 0.0 {
             return 1.0;
         }
-        let theta = frame::sin2_theta(v).sqrt().atan2(v.z);
-        let x = theta / FRAC_PI_2 * (self.n_theta_k - 1) as f32;
-        let j0 = (x as usize).min(self.n_theta_k - 2);
-        let fj = (x - j0 as f32).clamp(0.0, 1.0);
-        let y = frame::phi(v) / std::f32::consts::TAU * self.n_phi as f32 - 0.5;
-        let yf = frame::floor(y);
-        let fq = y - yf;
-        let q0 = wrap(yf as i64, self.n_phi);
-        let q1 = if q0 + 1 == self.n_phi { 0 } else { q0 + 1 };
+        let (j0, q0, q1, fj, fq) = (c.j0 as usize, c.q0 as usize, c.q1 as usize, c.fj, c.fq);
         let s = |j: usize, q: usize| self.sigma[j * self.n_phi + q];
         let a = s(j0, q0) * (1.0 - fq) + s(j0, q1) * fq;
         let b = s(j0 + 1, q0) * (1.0 - fq) + s(j0 + 1, q1) * fq;
         let sigma = a * (1.0 - fj) + b * fj;
-        if sigma.is_finite() { sigma.max(v.z) } else { v.z.max(MIN_SIGMA) }
+        if sigma.is_finite() { sigma.max(c.z) } else { c.z.max(MIN_SIGMA) }
     }
 
     /// Smith masking `S(v) = cos(theta_v) / sigma(v)`.

@@ -26,7 +26,7 @@ mod tabulated;
 
 pub use beckmann::{Beckmann, BeckmannLobe};
 pub use ggx::Ggx;
-pub use masking::{MaskingOperator, MaskingTable, wrap};
+pub use masking::{MaskingCell, MaskingOperator, MaskingTable, wrap};
 pub use mixture::Mixture;
 pub use power_cosine::PowerCosine;
 pub use set::TableSet;
