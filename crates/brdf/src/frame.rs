@@ -40,6 +40,12 @@ pub fn cos2_sin2_phi(v: Vec3) -> (f32, f32) {
     if s2 <= 0.0 { (1.0, 0.0) } else { (v.x * v.x / s2, v.y * v.y / s2) }
 }
 
+/// Polar angle of a direction from the normal (`+z`), in `[0, pi]`.
+#[inline]
+pub fn polar(v: Vec3) -> f32 {
+    sin2_theta(v).sqrt().atan2(v.z)
+}
+
 /// Azimuth in `[0, 2 pi)`.
 #[inline]
 pub fn phi(v: Vec3) -> f32 {

@@ -245,7 +245,7 @@ fn gauss_steps() -> &'static [(f32, f32); GAUSS_LUT + 1] {
     })
 }
 
-/// What [`kernel_cells`] reads of a table's geometry, computed once per
+/// What [`kernel`] reads of a table's geometry, computed once per
 /// grid: each cell's centre direction and each ring's lower-edge sine.
 #[derive(Debug)]
 pub(crate) struct KernelGrid {
@@ -264,19 +264,30 @@ impl KernelGrid {
     }
 }
 
-/// Cells within 2.5 kernel widths of `h` (beyond that the weight is below
-/// 0.044 and is dropped), with Gaussian weights (from a 1,024-entry table,
-/// linearly interpolated: relative error below 1e-6)
-/// `exp(-d^2 / (2 r^2))` of the chord distance `d` to each cell centre.
+/// A sample's kernel: pushed to `out`, the cells within 2.5 kernel widths
+/// of `h` (beyond that the weight is below 0.044 and is dropped), with
+/// Gaussian weights (from a 1,024-entry table, linearly interpolated:
+/// relative error below 1e-6) `exp(-d^2 / (2 r^2))` of the chord distance
+/// `d` to each cell centre.
 /// The cells come ring by ring and, within a ring, sector by sector from
 /// the first one in reach (the order the sums over them add in).
-pub(crate) fn kernel_cells(kg: &KernelGrid, h: Vec3, r: f32, out: &mut Vec<(u32, f32)>) {
+///
+/// Returned: the four table cells around `h` and their bilinear weights
+/// (the table's own interpolation, [`NdfGrid::bilinear`]), from the same
+/// computation of `h`'s angles.
+pub(crate) fn kernel(kg: &KernelGrid, h: Vec3, r: f32, out: &mut Vec<(u32, f32)>) -> [(u32, f32); 4] {
+    let (theta_h, phi_h) = (brdf::frame::polar(h), brdf::frame::phi(h));
+    kernel_cells(kg, h, theta_h, phi_h, r, out);
+    let grid = kg.grid;
+    grid.bilinear_at(theta_h, phi_h).weights(grid.n_phi as usize).map(|(c, w)| (c as u32, w))
+}
+
+/// [`kernel`]'s cells, with `h`'s polar angle and azimuth given.
+fn kernel_cells(kg: &KernelGrid, h: Vec3, theta_h: f32, phi_h: f32, r: f32, out: &mut Vec<(u32, f32)>) {
     let grid = kg.grid;
     let (nt, np) = (grid.n_theta as usize, grid.n_phi as usize);
     let reach = 2.5 * r;
     let reach2 = reach * reach;
-    let theta_h = brdf::frame::sin2_theta(h).sqrt().atan2(h.z);
-    let phi_h = brdf::frame::phi(h);
     let inv2r2 = 1.0 / (2.0 * r * r);
     let steps = gauss_steps();
     let scale = GAUSS_LUT as f32 / GAUSS_MAX_X;
@@ -371,12 +382,6 @@ pub(crate) fn kernel_cells(kg: &KernelGrid, h: Vec3, r: f32, out: &mut Vec<(u32,
     }
 }
 
-/// The four table cells around a sample's half vector and their bilinear
-/// weights (the table's own interpolation, [`NdfGrid::bilinear`]).
-pub(crate) fn corners(grid: NdfGrid, h: Vec3) -> [(u32, f32); 4] {
-    grid.bilinear(h).weights(grid.n_phi as usize).map(|(c, w)| (c as u32, w))
-}
-
 /// The kernel layout of a splat, fixed while its values change: where each
 /// sample's kernel lies, and the region's push-pull confidence and extent.
 pub(crate) struct SplatLayout<'a> {
@@ -434,19 +439,13 @@ impl Kernels<'_> {
     }
 
     /// Sample `k`'s corners and kernel cells (`scratch` holds computed ones).
-    pub(crate) fn get<'s>(
-        &'s self,
-        grid: NdfGrid,
-        k: usize,
-        scratch: &'s mut Vec<(u32, f32)>,
-    ) -> ([(u32, f32); 4], &'s [(u32, f32)]) {
+    pub(crate) fn get<'s>(&'s self, k: usize, scratch: &'s mut Vec<(u32, f32)>) -> ([(u32, f32); 4], &'s [(u32, f32)]) {
         match self {
             Kernels::Stored { cells, offsets, corners: c } => (c[k], &cells[offsets[k]..offsets[k + 1]]),
             Kernels::Computed { kg, h_r } => {
                 let (h, r) = h_r[k];
                 scratch.clear();
-                kernel_cells(kg, h, r, scratch);
-                (corners(grid, h), scratch.as_slice())
+                (kernel(kg, h, r, scratch), scratch.as_slice())
             }
         }
     }
@@ -481,7 +480,7 @@ impl SplatLayout<'_> {
                 if !(wk > 0.0) || !dk.is_finite() {
                     return;
                 }
-                let (corners, cells) = self.kernels.get(self.grid, k, scratch);
+                let (corners, cells) = self.kernels.get(k, scratch);
                 let at: f32 = corners.iter().map(|&(c, w)| w * values_now[c as usize]).sum();
                 let r = (dk - at) as f64;
                 for &(c, w) in cells {
@@ -777,8 +776,7 @@ fn fit_point_with(
     for x in &ps.samples {
         let h = (x.i + ps.o).normalize_or(Vec3::Z);
         s.h.push(h);
-        s.corners.push(corners(grid, h));
-        kernel_cells(&kg, h, x.kernel_rad.max(crate::tol::MIN_KERNEL_RAD), &mut s.cells);
+        s.corners.push(kernel(&kg, h, x.kernel_rad.max(crate::tol::MIN_KERNEL_RAD), &mut s.cells));
         s.offsets.push(s.cells.len());
     }
     s.kernel_grid = Some(kg);
@@ -947,7 +945,7 @@ mod tests {
 mod kernel_tests {
     use super::*;
 
-    /// [`kernel_cells`] as first written: every ring tested, the ring's
+    /// [`kernel`]'s cells as first written: every ring tested, the ring's
     /// sines from the library, one division per sector. The fast one must
     /// give its cells, order and weights bit for bit (the splat's sums add
     /// in that order).
@@ -987,7 +985,7 @@ mod kernel_tests {
     }
 
     #[test]
-    fn kernel_cells_are_the_direct_scans_bit_for_bit() {
+    fn kernels_are_the_direct_scans_and_corners_the_tables_bit_for_bit() {
         let mut state = 12345u64;
         let mut rnd = || {
             state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
@@ -1016,10 +1014,12 @@ mod kernel_tests {
                 let r = crate::tol::MIN_KERNEL_RAD.max(0.002 + 0.2 * rnd() * rnd());
                 fast.clear();
                 direct.clear();
-                kernel_cells(&kg, h, r, &mut fast);
+                let corners = kernel(&kg, h, r, &mut fast);
                 direct_scan(grid, &centres, h, r, &mut direct);
                 let bits = |v: &[(u32, f32)]| v.iter().map(|&(c, w)| (c, w.to_bits())).collect::<Vec<_>>();
                 assert_eq!(bits(&fast), bits(&direct), "h {h:?}, r {r}, grid {grid:?}");
+                let table = grid.bilinear(h).weights(grid.n_phi as usize).map(|(c, w)| (c as u32, w));
+                assert_eq!(bits(&corners), bits(&table), "corners of h {h:?}, grid {grid:?}");
                 cells += fast.len();
             }
             // The kernels reached cells: the comparison compared something.

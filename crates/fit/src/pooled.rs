@@ -67,9 +67,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::context::FitContext;
-use crate::partial::{
-    KernelGrid, Kernels, PointSamples, SplatLayout, Splatted, close, join, kernel_cells, lum, point_flag,
-};
+use crate::partial::{KernelGrid, Kernels, PointSamples, SplatLayout, Splatted, close, join, kernel, lum, point_flag};
 use crate::points::{PointMaps, gather};
 use crate::pushpull::push_pull;
 use crate::samples::SampleStore;
@@ -301,15 +299,14 @@ const MAX_STORED_CELLS: usize = 1 << 24;
 /// when they would be more than [`MAX_STORED_CELLS`].
 #[allow(clippy::type_complexity)]
 fn store_kernels(kg: &KernelGrid, h_r: &[(Vec3, f32)]) -> Option<(Vec<(u32, f32)>, Vec<usize>, Vec<[(u32, f32); 4]>)> {
-    let grid = kg.grid;
     let (mut cells, mut offsets, mut corners) = (Vec::new(), vec![0], Vec::with_capacity(h_r.len()));
     for &(h, r) in h_r {
-        kernel_cells(kg, h, r, &mut cells);
+        let c = kernel(kg, h, r, &mut cells);
         if cells.len() > MAX_STORED_CELLS {
             return None;
         }
         offsets.push(cells.len());
-        corners.push(crate::partial::corners(grid, h));
+        corners.push(c);
     }
     Some((cells, offsets, corners))
 }
@@ -395,7 +392,7 @@ fn estimate(settings: &FitSettings, op: &MaskingOperator, members: &[Member], cl
         None => Kernels::Computed { kg: &kg, h_r: &h_r },
     };
     let [sum_k, _] = kernels.sums(grid, h_r.len(), |k, scratch, [sum_k, _]| {
-        for &(c, w) in kernels.get(grid, k, scratch).1 {
+        for &(c, w) in kernels.get(k, scratch).1 {
             sum_k[c as usize] += w as f64;
         }
     });
@@ -431,7 +428,7 @@ fn estimate(settings: &FitSettings, op: &MaskingOperator, members: &[Member], cl
         let [sum_w, sum_wd] = layout.kernels.sums(grid, d_all.len(), |k, scratch, [sum_w, sum_wd]| {
             let (d, wk) = (d_all[k] as f64, weight[k]);
             if wk > 0.0 {
-                for &(c, w) in layout.kernels.get(grid, k, scratch).1 {
+                for &(c, w) in layout.kernels.get(k, scratch).1 {
                     sum_w[c as usize] += w as f64 * wk;
                     sum_wd[c as usize] += w as f64 * d * wk;
                 }

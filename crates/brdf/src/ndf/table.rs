@@ -156,9 +156,16 @@ impl NdfGrid {
     /// Continuous table coordinates of a direction: `(ring, sector)` measured
     /// in cells, so cell `(t, p)` spans `[t, t+1) x [p, p+1)`.
     pub fn coords(&self, h: Vec3) -> (f32, f32) {
-        let theta = frame::sin2_theta(h).sqrt().atan2(h.z).clamp(0.0, FRAC_PI_2);
+        self.coords_at(frame::polar(h), frame::phi(h))
+    }
+
+    /// [`NdfGrid::coords`] of the direction at polar angle `theta` and
+    /// azimuth `phi` (`frame::polar` and `frame::phi` of it), for a caller
+    /// that has them already.
+    pub fn coords_at(&self, theta: f32, phi: f32) -> (f32, f32) {
+        let theta = theta.clamp(0.0, FRAC_PI_2);
         let u = (theta / FRAC_PI_2).sqrt() * self.n_theta as f32;
-        let p = frame::phi(h) / self.dphi();
+        let p = phi / self.dphi();
         (u, p)
     }
 
@@ -166,7 +173,12 @@ impl NdfGrid {
     /// them: [`NdfTable::eval`]'s interpolation, bilinear in
     /// `(sqrt(2 theta / pi), phi)`, periodic in phi and clamped in theta.
     pub fn bilinear(&self, h: Vec3) -> Bilinear {
-        let (u, p) = self.coords(h);
+        self.bilinear_at(frame::polar(h), frame::phi(h))
+    }
+
+    /// [`NdfGrid::bilinear`] from the direction's polar angle and azimuth.
+    pub fn bilinear_at(&self, theta: f32, phi: f32) -> Bilinear {
+        let (u, p) = self.coords_at(theta, phi);
         let (nt, np) = (self.n_theta as usize, self.n_phi as usize);
         let tu = (u - 0.5).clamp(0.0, (nt - 1) as f32);
         let t0 = (tu as usize).min(nt - 1);
