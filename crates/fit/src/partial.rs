@@ -319,13 +319,15 @@ fn kernel_cells(kg: &KernelGrid, h: Vec3, theta_h: f32, phi_h: f32, r: f32, out:
         let ring = &kg.centres[t * np..(t + 1) * np];
         let d2_at = |p: usize| (h - ring[p]).length_squared();
         if s > 2.0 * reach {
-            // A centre of this ring within reach is within `asin(reach /
-            // s)` of `phi_h` in azimuth (its chord is at least `sin(theta)
-            // |sin(dphi)|`), and along the ring the chord grows with the
-            // azimuth away from `phi_h`, by steps far above rounding here
-            // (`sin(theta_h) > s / 2`: the chord is at least `|sin(theta)
-            // - sin(theta_h)|`): the cells in reach are one arc around the
-            // nearest centre. Find it and walk out from it.
+            // A centre of this ring within reach lies within `asin(reach /
+            // s)` of `phi_h` in azimuth (the chord to a centre `a` away in
+            // azimuth is at least `sin(theta) |sin(a)|`), inside the range
+            // the scan below would visit; along the ring the chord grows
+            // with `a`, by steps far above rounding here (`sin(theta_h) >
+            // s / 2`, as the chord is at least `|sin(theta) -
+            // sin(theta_h)|`). So the cells in reach are one arc around
+            // the nearest centre, in the scan's order: find it and walk
+            // out from it.
             let pc = brdf::ndf::wrap(brdf::frame::floor(phi_h / dphi) as i64, np);
             let (mut start, mut d2_start) = (pc, d2_at(pc));
             for p in [prev(pc), next(pc)] {

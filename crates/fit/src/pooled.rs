@@ -400,9 +400,8 @@ fn estimate(settings: &FitSettings, op: &MaskingOperator, members: &[Member], cl
     let observed: Vec<bool> = sum_k.iter().map(|&w| w >= observed_weight).collect();
     let covered = close(grid, &observed);
     let confidence: Vec<f32> = sum_k.iter().map(|&w| (w / observed_weight).min(1.0) as f32).collect();
-    // Masking: each member's own to start, then the pooled table's.
-    // Per member, each sample's `4 sigma(i) sigma(o)`: its own table's to
-    // start, then the pooled table's of the round before.
+    // Masking, per member and sample `4 sigma(i) sigma(o)`: the member's
+    // own table's to start, then the pooled table's of the round before.
     let mut masking: Vec<Vec<f32>> =
         cluster.iter().map(|&j| members[j].samples.iter().map(|x| x.own_masking).collect()).collect();
     let mut k_s: Vec<f32> = cluster.iter().map(|&j| members[j].k_s).collect();
