@@ -165,11 +165,9 @@ impl MaskingOperator {
 /// masking iteration) is located once.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct MaskingCell {
-    // Rings and sectors fit 16 bits (`NdfGrid::new`: at most 512 rings,
-    // so 1,025 direction rings, and 4,096 sectors).
-    j0: u16,
-    q0: u16,
-    q1: u16,
+    j0: u32,
+    q0: u32,
+    q1: u32,
     fj: f32,
     fq: f32,
     z: f32,
@@ -197,7 +195,7 @@ fn locate(n_theta_k: usize, n_phi: usize, v: Vec3) -> MaskingCell {
     let fq = y - yf;
     let q0 = wrap(yf as i64, n_phi);
     let q1 = if q0 + 1 == n_phi { 0 } else { q0 + 1 };
-    MaskingCell { j0: j0 as u16, q0: q0 as u16, q1: q1 as u16, fj, fq, z: v.z }
+    MaskingCell { j0: j0 as u32, q0: q0 as u32, q1: q1 as u32, fj, fq, z: v.z }
 }
 
 /// `sigma(k)` tabulated over directions, with interpolation.
