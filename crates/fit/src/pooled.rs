@@ -457,7 +457,7 @@ fn estimate(settings: &FitSettings, op: &MaskingOperator, members: &[Member], cl
                 let mb = &members[j];
                 let sigma_o = m.projected_area(mb.o);
                 let masking: Vec<f32> = mb.samples.iter().map(|x| 4.0 * m.projected_area_at(&x.i) * sigma_o).collect();
-                (Fit::with(mb, &table, &masking), masking)
+                (Fit::with(mb, &table, masking.iter().copied()), masking)
             })
             .unzip();
         k_s.iter_mut().zip(&fits).for_each(|(k_s, f)| {
@@ -515,14 +515,15 @@ impl Member {
             .iter()
             .map(|x| {
                 let h = (x.i + ps.o).normalize_or(Vec3::Z);
+                let i = op.locate(x.i);
                 PoolSample {
-                    i: op.locate(x.i),
+                    i,
                     h,
                     spec: lum([x.rho[0] - rho_d[0], x.rho[1] - rho_d[1], x.rho[2] - rho_d[2]]),
                     var: x.var,
                     fresnel: (fresnel::dielectric(x.i.dot(h), eta) / f0).max(crate::tol::MIN_FRESNEL_RATIO),
                     kernel_rad: x.kernel_rad,
-                    own_masking: 4.0 * own.projected_area(x.i) * sigma_o,
+                    own_masking: 4.0 * own.projected_area_at(&i) * sigma_o,
                 }
             })
             .collect();
@@ -545,21 +546,18 @@ struct Fit {
 impl Fit {
     fn of(mb: &Member, table: &NdfTable, m: &MaskingTable) -> Self {
         let sigma_o = m.projected_area(mb.o);
-        Self::with_each(mb, table, mb.samples.iter().map(|x| 4.0 * m.projected_area_at(&x.i) * sigma_o))
+        Self::with(mb, table, mb.samples.iter().map(|x| 4.0 * m.projected_area_at(&x.i) * sigma_o))
     }
 
     /// The same under the point's own table's masking, which the member
     /// keeps per sample.
     fn own(mb: &Member, table: &NdfTable) -> Self {
-        Self::with_each(mb, table, mb.samples.iter().map(|x| x.own_masking))
+        Self::with(mb, table, mb.samples.iter().map(|x| x.own_masking))
     }
 
-    /// The sums with `masking[k]` sample `k`'s `4 sigma(i) sigma(o)`.
-    fn with(mb: &Member, table: &NdfTable, masking: &[f32]) -> Self {
-        Self::with_each(mb, table, masking.iter().copied())
-    }
-
-    fn with_each(mb: &Member, table: &NdfTable, masking: impl Iterator<Item = f32>) -> Self {
+    /// The sums with the `k`-th of `masking` sample `k`'s
+    /// `4 sigma(i) sigma(o)`.
+    fn with(mb: &Member, table: &NdfTable, masking: impl Iterator<Item = f32>) -> Self {
         let mut f = Fit::default();
         for (x, denom) in mb.samples.iter().zip(masking) {
             let g = if denom > 0.0 { (table.eval(x.h) * x.fresnel / denom) as f64 } else { 0.0 };

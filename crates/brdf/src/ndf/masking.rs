@@ -24,7 +24,7 @@ use glam::Vec3;
 use realfft::num_complex::Complex32;
 use realfft::{ComplexToReal, RealFftPlanner, RealToComplex};
 
-use super::{NdfGrid, NdfTable};
+use super::{NdfGrid, NdfTable, wrap};
 use crate::frame;
 
 /// Sub-samples per cell edge used to integrate the kernel over a cell: 8 in
@@ -239,29 +239,6 @@ impl MaskingTable {
     }
 }
 
-/// `i` modulo `n` in `0..n`; the division only for an `i` outside
-/// `0..n` (this sits in the masking term's and the tables' inner loops).
-#[inline]
-pub fn wrap(i: i64, n: usize) -> usize {
-    if (0..n as i64).contains(&i) { i as usize } else { i.rem_euclid(n as i64) as usize }
-}
-
 /// Floor for a projected area that is not finite (cannot happen for finite
 /// tables; kept so no NaN can escape).
 const MIN_SIGMA: f32 = 1e-6;
-
-#[cfg(test)]
-mod tests {
-    use super::wrap;
-
-    #[test]
-    fn wrap_is_the_euclidean_remainder() {
-        for n in [1usize, 4, 7, 96, 4096] {
-            for i in -3 * n as i64 - 2..3 * n as i64 + 2 {
-                assert_eq!(wrap(i, n), i.rem_euclid(n as i64) as usize, "wrap({i}, {n})");
-            }
-        }
-        assert_eq!(wrap(i64::MIN, 96), i64::MIN.rem_euclid(96) as usize);
-        assert_eq!(wrap(i64::MAX, 96), i64::MAX.rem_euclid(96) as usize);
-    }
-}

@@ -26,12 +26,12 @@ mod tabulated;
 
 pub use beckmann::{Beckmann, BeckmannLobe};
 pub use ggx::Ggx;
-pub use masking::{MaskingCell, MaskingOperator, MaskingTable, wrap};
+pub use masking::{MaskingCell, MaskingOperator, MaskingTable};
 pub use mixture::Mixture;
 pub use power_cosine::PowerCosine;
 pub use set::TableSet;
 pub use sheen::Sheen;
-pub use table::{Coverage, NdfGrid, NdfTable, TableError, rotation_sources};
+pub use table::{Coverage, NdfGrid, NdfTable, TableError, rotation_sources, split_shift, wrap};
 pub use tabulated::TabulatedNdf;
 
 use glam::{Vec2, Vec3};

@@ -22,6 +22,22 @@ use thiserror::Error;
 
 use crate::frame;
 
+/// `i` modulo `n` in `0..n`; the division only for an `i` outside
+/// `0..n` (this sits in the masking term's, the tables' and the kernels' inner
+/// loops).
+#[inline]
+pub fn wrap(i: i64, n: usize) -> usize {
+    if (0..n as i64).contains(&i) { i as usize } else { i.rem_euclid(n as i64) as usize }
+}
+
+/// A rotation by `shift` sectors as the whole sectors it turns by, in
+/// `0..n_phi`, and the fraction toward the next (what
+/// [`rotation_sources`] and the blend of its two sources take).
+pub fn split_shift(shift: f32, n_phi: usize) -> (usize, f32) {
+    let s0 = frame::floor(shift);
+    (wrap(s0 as i64, n_phi), shift - s0)
+}
+
 /// The source sectors of each destination sector `p` in `0..n_phi` of a
 /// ring turned by `s0` whole sectors (`s0 < n_phi`) and a fraction toward
 /// the next: `(p - s0, p - s0 - 1)` modulo `n_phi`, in order of `p`. They
@@ -184,7 +200,7 @@ impl NdfGrid {
         let t0 = (tu as usize).min(nt - 1);
         let pp = p - 0.5;
         let pf = frame::floor(pp);
-        let p0 = super::masking::wrap(pf as i64, np);
+        let p0 = wrap(pf as i64, np);
         let p1 = if p0 + 1 == np { 0 } else { p0 + 1 };
         Bilinear { t: [t0, (t0 + 1).min(nt - 1)], ft: tu - t0 as f32, p: [p0, p1], fp: pp - pf }
     }
@@ -420,9 +436,7 @@ impl NdfTable {
     pub fn rotated(&self, angle_rad: f32) -> NdfTable {
         let np = self.grid.n_phi as usize;
         let shift = angle_rad / self.grid.dphi();
-        let s0 = frame::floor(shift);
-        let f = shift - s0;
-        let s0 = super::masking::wrap(s0 as i64, np);
+        let (s0, f) = split_shift(shift, np);
         let mut out = NdfTable::zeros(self.grid);
         for t in 0..self.grid.n_theta as usize {
             for (p, (a, b)) in rotation_sources(np, s0).enumerate() {
@@ -479,6 +493,25 @@ pub const MIN_NORMALISABLE: f32 = 1e-12;
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_shift_splits_into_whole_sectors_around_the_ring_and_a_fraction() {
+        assert_eq!(split_shift(2.25, 96), (2, 0.25));
+        assert_eq!(split_shift(-0.25, 96), (95, 0.75));
+        assert_eq!(split_shift(96.5, 96), (0, 0.5));
+        assert_eq!(split_shift(-192.0, 96), (0, 0.0));
+    }
+
+    #[test]
+    fn wrap_is_the_euclidean_remainder() {
+        for n in [1usize, 4, 7, 96, 4096] {
+            for i in -3 * n as i64 - 2..3 * n as i64 + 2 {
+                assert_eq!(wrap(i, n), i.rem_euclid(n as i64) as usize, "wrap({i}, {n})");
+            }
+        }
+        assert_eq!(wrap(i64::MIN, 96), i64::MIN.rem_euclid(96) as usize);
+        assert_eq!(wrap(i64::MAX, 96), i64::MAX.rem_euclid(96) as usize);
+    }
 
     #[test]
     fn rotation_sources_are_the_sectors_behind_by_the_shift() {

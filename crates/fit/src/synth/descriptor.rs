@@ -81,9 +81,7 @@ impl Core {
         let (np, g) = (self.grid.n_phi as usize, &self.grid);
         out.iter_mut().for_each(|v| *v = 0.0);
         let mut weights = vec![0.0f32; self.len()];
-        let s0 = brdf::frame::floor(shift);
-        let f = shift - s0;
-        let s0 = brdf::ndf::wrap(s0 as i64, np);
+        let (s0, f) = brdf::ndf::split_shift(shift, np);
         for t_ in 0..self.rings {
             let band = t_ * self.bands / self.rings;
             let w = g.cos_measure(t_);

@@ -252,9 +252,7 @@ pub fn score_at(
     min_overlap: f32,
 ) -> Option<Match> {
     let np = grid.n_phi as usize;
-    let s0f = brdf::frame::floor(shift);
-    let f = shift - s0f;
-    let s0 = brdf::ndf::wrap(s0f as i64, np);
+    let (s0, f) = brdf::ndf::split_shift(shift, np);
     let (mut a, mut b, mut c, mut n, mut gain, mut observed, mut missing) = (0.0f64, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
     for t in 0..grid.n_theta as usize {
         let w = grid.cos_measure(t) as f64;
