@@ -6,7 +6,8 @@
 #
 #   bash scripts/eval-all.sh [--quality Q] [--bin DIR] [--rig FILE]
 #                            [--sim-rig RIG] [--no-geometric-calibration]
-#                            [--hdr N] [--bracket every|clipped] [OUT]
+#                            [--hdr N] [--bracket every|clipped] [--reeval]
+#                            [OUT]
 #
 # --rig names a rig file (default the embedded simulated rig; e.g.
 # scripts/rigs/sim-no-patches.toml, the same rig without the reference
@@ -18,6 +19,8 @@
 # uncalibrated rig).
 # --hdr and --bracket override the preset's HDR bracket in every capture
 # (`--hdr 1`: one exposure, the presets' before adaptive brackets).
+# --reeval scores the captures already in OUT again with this build's
+# `refl eval` (no new capture: for a change to the eval alone).
 # --bin names the directory holding `capture` and `refl` (default: this
 # tree's release build, built first), so two builds can be compared on the
 # same inputs. Without ../shared/data/rgl the RGL rows are skipped, and the
@@ -28,6 +31,7 @@ quality=fast
 bin=""
 rig=()
 no_geometry=0
+reeval=0
 while [ $# -gt 0 ]; do
   case "$1" in
     --quality) quality="$2"; shift 2 ;;
@@ -36,6 +40,7 @@ while [ $# -gt 0 ]; do
     --hdr|--bracket) rig+=("$1" "$2"); shift 2 ;;
     --rig) rig+=(--rig "$(cd "$(dirname "$2")" && pwd)/$(basename "$2")"); shift 2 ;;
     --no-geometric-calibration) no_geometry=1; shift ;;
+    --reeval) reeval=1; shift ;;
     *) break ;;
   esac
 done
@@ -68,9 +73,14 @@ ha = ho.get("auto") or {}
 single = {k: v["render_rel_rmse"] for k, v in m.items() if k != "auto" and v.get("render_rel_rmse") is not None}
 auto_rel = m.get("auto", {}).get("render_rel_rmse")
 auto_rel = auto_rel / min(single.values()) if auto_rel is not None and single and min(single.values()) > 0 else None
+def rr(k):
+    v = m.get(k, {}).get("render_rel_rmse_resolved")
+    return "-" if v is None else f"{v:.4f}"
 print(f"{name:24} {f(syn.get('ndf_rel_l2_observed')):>8} {f(syn.get('ndf_shape_observed')):>8} "
-      f"{f(syn.get('ndf_rel_l2_full')):>8} {r('synthesized'):>8} {r('auto'):>8} {(best or '-'):>18} "
-      f"{f(analytic.get(best)) if best else '-':>8} {f(hs.get('frame_rel_rmse')):>8} {f(ha.get('frame_rel_rmse')):>8} "
+      f"{f(syn.get('ndf_rel_l2_full')):>8} {f(syn.get('ndf_rel_l2_observed_footprint')):>8} "
+      f"{f(syn.get('ndf_rel_l2_full_footprint')):>8} {r('synthesized'):>8} {r('auto'):>8} {(best or '-'):>18} "
+      f"{f(analytic.get(best)) if best else '-':>8} {f(ev.get('render_resolution_floor')):>8} "
+      f"{rr('synthesized'):>8} {rr('auto'):>8} {f(hs.get('frame_rel_rmse')):>8} {f(ha.get('frame_rel_rmse')):>8} "
       f"{f(hs.get('noise_floor')):>8} {f(auto_rel):>9}")
 EOF
 }
@@ -78,25 +88,31 @@ EOF
 scan() { # name [capture args...]
   local name="$1"; shift
   local dir="$out/$name"
-  rm -rf "$dir"
-  "$bin/capture" --quality "$quality" --no-daemon --out "$dir" "${rig[@]}" "$@" >/dev/null 2>"$out/$name.log"
+  if [ "$reeval" = 1 ]; then
+    [ -f "$dir/capture.json" ] || { echo "eval-all: --reeval: $dir holds no capture" >&2; return 1; }
+  else
+    rm -rf "$dir"
+    "$bin/capture" --quality "$quality" --no-daemon --out "$dir" "${rig[@]}" "$@" >/dev/null 2>"$out/$name.log"
+  fi
   "$bin/refl" eval "$dir" --json --px 64 >"$dir/eval.json" 2>>"$out/$name.log"
   row "$name" "$dir"
 }
 
-if [ "$no_geometry" = 1 ]; then
+if [ "$no_geometry" = 1 ] && [ "$reeval" = 0 ]; then
   "$bin/capture" --calibrate white --quality "$quality" --no-daemon "${rig[@]}" >/dev/null 2>"$out/calibrate.log"
 fi
 
-printf '%-24s %8s %8s %8s %8s %8s %18s %8s %8s %8s %8s %9s\n' sample ndf_obs shape ndf_full synth auto best_analytic best ho_synth ho_auto floor auto/best
+printf '%-24s %8s %8s %8s %8s %8s %8s %8s %18s %8s %8s %8s %8s %8s %8s %8s %9s\n' sample ndf_obs shape ndf_full obs_fp full_fp synth auto best_analytic best res_flr synth_rs auto_rs ho_synth ho_auto floor auto/best
 for s in $("$bin/capture" --list-samples | awk '{print $1}'); do
   scan "$s" --sample "$s"
 done
 if [ -d "$rgl_dir" ]; then
   for f in "$rgl_dir"/*.bsdf; do
     name="$(basename "$f" .bsdf)"
-    rm -rf "$out/mat-$name"
-    "$bin/refl" import-rgl "$f" --out "$out/mat-$name" >/dev/null 2>"$out/$name.import.log"
+    if [ "$reeval" = 0 ]; then
+      rm -rf "$out/mat-$name"
+      "$bin/refl" import-rgl "$f" --out "$out/mat-$name" >/dev/null 2>"$out/$name.import.log"
+    fi
     scan "$name" --sample "$name" --sim-material "$out/mat-$name"
   done
 else

@@ -30,6 +30,7 @@ use brdf::Brdf;
 use brdf::ndf::NdfTable;
 use config::Quality;
 use material::{Material, MaterialView, ModelChoice, NdfKind, SvBrdf};
+use rayon::prelude::*;
 use render::{Image, Light, Scene};
 use serde::Serialize;
 use setup::SampleArea;
@@ -86,6 +87,10 @@ pub fn scene_for(c: &Condition, px: u32) -> Scene {
 #[derive(Clone, Debug, Default, PartialEq, Serialize)]
 pub struct ModelScore {
     pub render_rel_rmse: Option<f64>,
+    /// The same renders against the truth as the material's points measure
+    /// it ([`Evaluation::render_resolution_floor`]'s renders): the model's
+    /// error with the camera's and the point grid's resolution left out.
+    pub render_rel_rmse_resolved: Option<f64>,
     /// Relative L2 of the fitted NDF against the true one on the cells the
     /// fit observed, both as stored (each normalised over the hemisphere).
     pub ndf_rel_l2_observed: Option<f64>,
@@ -97,6 +102,17 @@ pub struct ModelScore {
     /// mass is off by it).
     pub ndf_shape_observed: Option<f64>,
     pub ndf_scale_observed: Option<f64>,
+    /// The same three against the truth the point's samples measure: the
+    /// true NDFs of every sensor pixel its value is read from, weighted as
+    /// the demosaic and the bilinear read weight them (its footprint on the
+    /// sample, about 1 mm at the balanced preset; see [`crate::footprint`]).
+    /// Where the material varies within that footprint (satin's weave
+    /// cells are 2.5 mm), no fit of these samples can reach the centre's
+    /// NDF; the difference between the two sets of figures is the camera's
+    /// resolution, the rest is the fitter's.
+    pub ndf_rel_l2_observed_footprint: Option<f64>,
+    pub ndf_rel_l2_full_footprint: Option<f64>,
+    pub ndf_shape_observed_footprint: Option<f64>,
     pub fit_seconds: Option<f64>,
 }
 
@@ -129,6 +145,12 @@ pub struct Evaluation {
     pub models: BTreeMap<String, ModelScore>,
     pub holdout: BTreeMap<String, Holdout>,
     pub condition_detail: Vec<ConditionDetail>,
+    /// The render error of the truth as the material's points measure it
+    /// (each point the mean BRDF of its footprint, [`crate::footprint`])
+    /// against the truth: what a perfect fit of every point's samples would
+    /// score, the camera's and the point grid's resolution. Simulated
+    /// captures only.
+    pub render_resolution_floor: Option<f64>,
 }
 
 #[derive(Clone, Debug)]
@@ -210,7 +232,40 @@ struct NdfErrors {
     scale_observed: Option<f64>,
 }
 
-fn ndf_errors(m: &Material, which: ModelChoice, truth: &dyn SvBrdf, max_points: usize) -> NdfErrors {
+/// The true NDF tables the NDF errors compare with, per scored point (up
+/// to `max_points` measured points spread over the sample), normalised over
+/// the hemisphere: the truth at the point's centre, and the truth over its
+/// footprint where the capture's camera is known.
+struct TruthTables {
+    points: Vec<usize>,
+    centre: Vec<Option<NdfTable>>,
+    footprint: Vec<Option<NdfTable>>,
+}
+
+impl TruthTables {
+    fn new(m: &Material, info: &store::CaptureInfo, truth: &dyn SvBrdf, max_points: usize) -> Option<Self> {
+        let grid = m.ndf.as_ref().or(m.partial.as_ref().map(|pf| &pf.tables))?.grid();
+        let n = m.n_points();
+        let stride = n.div_ceil(max_points.max(1)).max(1);
+        let points: Vec<usize> = (0..n).step_by(stride).filter(|&p| m.is_measured(p)).collect();
+        let tables: Vec<(Option<NdfTable>, Option<NdfTable>)> = points
+            .par_iter()
+            .map(|&p| {
+                let pos = m.grid.position_of(&m.sample, p);
+                let centre = truth.at(pos).ndf().map(|ndf| {
+                    let mut t = NdfTable::from_fn(grid, 3, |h| ndf.d(h));
+                    t.normalize();
+                    t
+                });
+                (centre, crate::footprint::ndf(&info.geometry.camera, info.sensor.layout, &m.sample, truth, pos, grid))
+            })
+            .collect();
+        let (centre, footprint) = tables.into_iter().unzip();
+        Some(Self { points, centre, footprint })
+    }
+}
+
+fn ndf_errors(m: &Material, which: ModelChoice, truth: &TruthTables, footprint: bool) -> NdfErrors {
     let set = match which {
         ModelChoice::Tabulated => m.ndf.as_ref(),
         ModelChoice::Partial => m.partial.as_ref().map(|pf| &pf.tables).or(m.ndf.as_ref()),
@@ -218,22 +273,18 @@ fn ndf_errors(m: &Material, which: ModelChoice, truth: &dyn SvBrdf, max_points: 
     };
     let Some(set) = set else { return NdfErrors::default() };
     let observed_set = m.partial.as_ref().map_or(set, |pf| &pf.tables);
-    let n = m.n_points();
-    let stride = n.div_ceil(max_points.max(1)).max(1);
     let grid = set.grid();
     let np = grid.n_phi as usize;
+    let tables = if footprint { &truth.footprint } else { &truth.centre };
     // Per point, in the table's cosine measure: on the observed cells
     // sum (a-b)^2, sum b^2, the best-scale residual, sum ab, sum aa; then
     // over the hemisphere sum (a-b)^2, sum b^2.
-    let sums: Vec<[f64; 7]> = (0..n)
-        .step_by(stride)
-        .filter(|&p| m.is_measured(p))
-        .filter_map(|p| {
-            let pos = m.grid.position_of(&m.sample, p);
-            let tp = truth.at(pos);
-            let ndf = tp.ndf()?;
-            let mut t = NdfTable::from_fn(grid, 3, |h| ndf.d(h));
-            t.normalize();
+    let sums: Vec<[f64; 7]> = truth
+        .points
+        .iter()
+        .zip(tables)
+        .filter_map(|(&p, t)| {
+            let t = t.as_ref().filter(|t| t.grid() == grid)?;
             let est = set.get(p);
             let obs = observed_set.get(p);
             let mut x = [0.0f64; 7];
@@ -360,6 +411,24 @@ pub fn evaluate(dir: &Path, opts: &EvalOptions, rep: &mut dyn Progress) -> Resul
         rep.stage("eval", format!("rendering the ground truth under {} conditions", conds.len()));
         conds.iter().map(|c| render::render(t.as_ref(), &sample, &scene_for(c, opts.render_px), 7)).collect()
     });
+    let resolved_renders: Option<Vec<Image>> = truth.as_ref().zip(truth_renders.as_ref()).map(|(t, tr)| {
+        rep.stage("eval", "rendering the truth as the points measure it (the resolution floor)".to_string());
+        let resolved = crate::footprint::Resolved {
+            material: m.clone(),
+            camera: info.geometry.camera,
+            layout: info.sensor.layout,
+            truth: t.clone(),
+        };
+        let renders: Vec<Image> =
+            conds.iter().map(|c| render::render(&resolved, &sample, &scene_for(c, opts.render_px), 7)).collect();
+        let pairs: Vec<(&Image, &Image)> = renders.iter().zip(tr.iter()).collect();
+        ev.render_resolution_floor = render::rel_rmse(&pairs);
+        renders
+    });
+    let truth_tables = truth.as_ref().and_then(|t| {
+        rep.stage("eval", "the true NDFs at the scored points and over their footprints".to_string());
+        TruthTables::new(&m, &info, t.as_ref(), opts.max_ndf_points)
+    });
     for (name, choice) in model_names(&m) {
         let t0 = Instant::now();
         let view = MaterialView::new(m.clone(), choice).ok_or_else(|| anyhow!("material lacks model {name}"))?;
@@ -371,21 +440,31 @@ pub fn evaluate(dir: &Path, opts: &EvalOptions, rep: &mut dyn Progress) -> Resul
                 .or_else(|| m.provenance.get("fit_seconds").and_then(|v| v.get(&name)).and_then(|v| v.as_f64())),
             ..ModelScore::default()
         };
-        if let (Some(truth), Some(tr)) = (&truth, &truth_renders) {
+        if let Some(tr) = &truth_renders {
             let renders: Vec<Image> =
                 conds.iter().map(|c| render::render(&view, &sample, &scene_for(c, opts.render_px), 7)).collect();
             let pairs: Vec<(&Image, &Image)> = renders.iter().zip(tr.iter()).collect();
             score.render_rel_rmse = render::rel_rmse(&pairs);
+            if let Some(rr) = &resolved_renders {
+                let pairs: Vec<(&Image, &Image)> = renders.iter().zip(rr.iter()).collect();
+                score.render_rel_rmse_resolved = render::rel_rmse(&pairs);
+            }
             for (d, pair) in ev.condition_detail.iter_mut().zip(&pairs) {
                 if let Some(e) = render::rel_rmse(std::slice::from_ref(pair)) {
                     d.render_rel_rmse.insert(name.clone(), e);
                 }
             }
-            let e = ndf_errors(&m, choice, truth.as_ref(), opts.max_ndf_points);
-            score.ndf_rel_l2_observed = e.observed;
-            score.ndf_rel_l2_full = e.full;
-            score.ndf_shape_observed = e.shape_observed;
-            score.ndf_scale_observed = e.scale_observed;
+            if let Some(tt) = &truth_tables {
+                let e = ndf_errors(&m, choice, tt, false);
+                score.ndf_rel_l2_observed = e.observed;
+                score.ndf_rel_l2_full = e.full;
+                score.ndf_shape_observed = e.shape_observed;
+                score.ndf_scale_observed = e.scale_observed;
+                let e = ndf_errors(&m, choice, tt, true);
+                score.ndf_rel_l2_observed_footprint = e.observed;
+                score.ndf_rel_l2_full_footprint = e.full;
+                score.ndf_shape_observed_footprint = e.shape_observed;
+            }
         }
         rep.stage("eval", format!("{name}: {:?} ({:.1} s)", score.render_rel_rmse, t0.elapsed().as_secs_f64()));
         ev.models.insert(name, score);

@@ -21,6 +21,7 @@ pub mod bench;
 pub mod budget;
 pub mod eval;
 pub mod export;
+pub mod footprint;
 pub mod gltf;
 pub mod inspect;
 pub mod renders;

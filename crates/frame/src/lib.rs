@@ -70,6 +70,18 @@ impl Layout {
     /// bilinear sample averages four demosaiced pixels, and each of those
     /// averages up to four sensor pixels of a missing colour.
     pub fn sample_footprint(self, width: u32, height: u32, x: f32, y: f32, weights: [f32; 3]) -> Option<[f32; 3]> {
+        let mut out = [0.0f32; 3];
+        for t in self.sample_weights(width, height, x, y, weights)? {
+            out[t.colour] += t.b * t.b;
+        }
+        Some(out)
+    }
+
+    /// The coefficients `b_j` of that weighted sum (see
+    /// [`Layout::sample_footprint`]): every raw sample it reads, with its
+    /// pixel, its colour and `b_j`, non-zero only. Where on the sample
+    /// those pixels look is what the point measures (its footprint).
+    pub fn sample_weights(self, width: u32, height: u32, x: f32, y: f32, weights: [f32; 3]) -> Option<Vec<RawTap>> {
         let (fx, fy) = (x - 0.5, y - 0.5);
         if !(fx >= 0.0 && fy >= 0.0) {
             return None;
@@ -86,20 +98,20 @@ impl Layout {
             (x0, y0 + 1, (1.0 - tx) * ty),
             (x0 + 1, y0 + 1, tx * ty),
         ];
-        let mut out = [0.0f32; 3];
+        let tap = |x: i64, y: i64, colour: usize, b: f32| RawTap { x: x as u32, y: y as u32, colour, b };
+        let mut out = Vec::new();
         match self {
             Layout::Mono => {
                 // Every channel is the raw sample itself; a mono sensor's
                 // one colour is counted in the green slot (as
                 // `fit::calibrate::dark_statistics` does).
                 let sum: f32 = weights.iter().sum();
-                out[1] = taps.iter().map(|t| (t.2 * sum).powi(2)).sum();
+                out.extend(taps.iter().map(|t| tap(t.0, t.1, 1, t.2 * sum)));
             }
             Layout::Rgb => {
                 // Three raw samples per pixel, each reaching one channel.
-                let w2: f32 = taps.iter().map(|t| t.2 * t.2).sum();
-                for c in 0..3 {
-                    out[c] = weights[c] * weights[c] * w2;
+                for t in &taps {
+                    out.extend((0..3).map(|c| tap(t.0, t.1, c, weights[c] * t.2)));
                 }
             }
             Layout::Bayer { pattern } => {
@@ -138,14 +150,28 @@ impl Layout {
                     for (k, &b) in row.iter().enumerate() {
                         let (xx, yy) = (x0 - 1 + k as i64, y0 - 1 + r as i64);
                         if xx >= 0 && yy >= 0 && xx < w && yy < h {
-                            out[pattern.channel(xx as u32, yy as u32)] += b * b;
+                            out.push(tap(xx, yy, pattern.channel(xx as u32, yy as u32), b));
                         }
                     }
                 }
             }
         }
+        out.retain(|t| t.b != 0.0);
         Some(out)
     }
+}
+
+/// One raw sample's share of a value read from a frame
+/// ([`Layout::sample_weights`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RawTap {
+    /// The sensor pixel.
+    pub x: u32,
+    pub y: u32,
+    /// The colour of the raw sample (a mono sensor's is green, 1).
+    pub colour: usize,
+    /// Its coefficient in the value.
+    pub b: f32,
 }
 
 /// Frame flags.
@@ -356,12 +382,13 @@ mod tests {
         assert!((s[0] - 300.0).abs() < 1e-3 && !c);
     }
 
-    /// The footprint against the real demosaic and sampler: a frame that
-    /// is 1 at one raw pixel and 0 elsewhere reads `b_j` there, so the sum
-    /// of `b_j^2` over every raw pixel of a colour is what
+    /// The weights and footprint against the real demosaic and sampler: a
+    /// frame that is 1 at one raw sample and 0 elsewhere reads `b_j` there,
+    /// which `sample_weights` must give for that sample, and the sum of
+    /// `b_j^2` over every raw sample of a colour is what
     /// `sample_footprint` must give for that colour.
     #[test]
-    fn sample_footprint_is_the_demosaic_and_samplers_own() {
+    fn sample_weights_and_footprint_are_the_demosaic_and_samplers_own() {
         let (w, h) = (9u32, 8u32);
         let weights = [0.2126f32, 0.7152, 0.0722];
         let layouts = [
@@ -374,6 +401,7 @@ mod tests {
             for &(x, y) in &[(3.5f32, 3.5f32), (4.2, 3.7), (1.1, 6.9), (7.9, 1.6), (0.6, 0.5)] {
                 let spp = layout.samples_per_pixel();
                 let mut want = [0.0f64; 3];
+                let taps = layout.sample_weights(w, h, x, y, weights).unwrap();
                 for j in 0..(w * h) as usize * spp {
                     let mut data = vec![0u16; (w * h) as usize * spp];
                     data[j] = 1;
@@ -387,6 +415,9 @@ mod tests {
                         Layout::Mono => 1,
                     };
                     want[colour] += (b as f64).powi(2);
+                    // Each raw sample's own coefficient, not only the sums.
+                    let got_b = taps.iter().find(|t| (t.x, t.y, t.colour) == (px, py, colour)).map_or(0.0, |t| t.b);
+                    assert!((got_b - b).abs() <= 1e-6, "{layout:?} at ({x}, {y}), raw sample {j}: {got_b} against {b}");
                 }
                 let got = layout.sample_footprint(w, h, x, y, weights).unwrap();
                 for c in 0..3 {
