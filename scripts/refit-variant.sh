@@ -4,12 +4,14 @@
 # which stage or which frames a figure comes from.
 #
 #   bash scripts/refit-variant.sh [--bin DIR] [--data DIR]
-#                                 [--drop-shorter] [--no-pooling] CAPTURE OUT
+#                                 [--drop-shorter] [--no-pooling] [--turn-members] CAPTURE OUT
 #
 # --drop-shorter leaves out the frames of an HDR bracket's shorter
 # exposures (a partial fit: the capture as if it had one exposure);
 # --no-pooling fits every point's NDF from its own samples (the capture's
-# settings without `pool`). The frames are linked, not copied; CAPTURE is
+# settings without `pool`); --turn-members pools with each member turned to
+# its cluster's lobe axis (`fit::pooled::PoolSettings::turn`, off in the
+# presets). The frames are linked, not copied; CAPTURE is
 # not changed. --data names the data directory holding the capture's
 # calibrations (default: CAPTURE's parent's `data`, where eval-all.sh puts
 # it). OUT/eval.json is the score, OUT.log the log.
@@ -19,12 +21,14 @@ bin=""
 data=""
 drop_shorter=0
 no_pooling=0
+turn_members=0
 while [ $# -gt 0 ]; do
   case "$1" in
     --bin) bin="$2"; shift 2 ;;
     --data) data="$2"; shift 2 ;;
     --drop-shorter) drop_shorter=1; shift ;;
     --no-pooling) no_pooling=1; shift ;;
+    --turn-members) turn_members=1; shift ;;
     *) break ;;
   esac
 done
@@ -37,12 +41,15 @@ rm -rf "$out"
 out="$(absolute_dir "$out")"
 export REFLECTOMETER_DATA="${data:-$(dirname "$src")/data}"
 ln -s "$src/frames" "$out/frames"
-python3 - "$src" "$out" "$drop_shorter" "$no_pooling" <<'PY'
+python3 - "$src" "$out" "$drop_shorter" "$no_pooling" "$turn_members" <<'PY'
 import json, sys
-src, out, drop_shorter, no_pooling = sys.argv[1], sys.argv[2], sys.argv[3] == "1", sys.argv[4] == "1"
+src, out = sys.argv[1], sys.argv[2]
+drop_shorter, no_pooling, turn_members = (a == "1" for a in sys.argv[3:6])
 info = json.load(open(f"{src}/capture.json"))
 if no_pooling:
     info["settings"]["pool"] = None
+if turn_members and info["settings"].get("pool"):
+    info["settings"]["pool"]["turn"] = True
 json.dump(info, open(f"{out}/capture.json", "w"), indent=2)
 dropped = 0
 with open(f"{out}/manifest.jsonl", "w") as m:

@@ -6,7 +6,9 @@
 //! the budget), then per point alone, then with its noise removed, then
 //! with each of the fitter's resolution knobs loosened. The noiseless rows
 //! are the method's own bias on this sampling; the rows after them say
-//! which knob that bias is in.
+//! which knob that bias is in. The "members turned" rows pool with each
+//! member turned to its cluster's lobe axis (`fit::pooled::PoolSettings::turn`,
+//! off in the presets).
 //!
 //! What this budget does not cover: the camera (its Bayer mosaic,
 //! quantisation, clipping, pixel response), the LEDs' true intensities and
@@ -58,6 +60,9 @@ struct Variant {
     denser: bool,
     /// Pool each material's points (`fit::pooled`) as the preset does.
     pooled: bool,
+    /// Pool with each member turned to its cluster's axis
+    /// (`fit::pooled::PoolSettings::turn`).
+    turned: bool,
     settings: fn(&mut fit::FitSettings),
 }
 
@@ -69,14 +74,32 @@ fn variants() -> Vec<Variant> {
             noise: true,
             denser: false,
             pooled: true,
+            turned: false,
             settings: keep,
         },
-        Variant { name: "no noise, pooled", noise: false, denser: false, pooled: true, settings: keep },
+        Variant { name: "no noise, pooled", noise: false, denser: false, pooled: true, turned: false, settings: keep },
+        Variant {
+            name: "as captured, pooled, members turned",
+            noise: true,
+            denser: false,
+            pooled: true,
+            turned: true,
+            settings: keep,
+        },
+        Variant {
+            name: "no noise, pooled, members turned",
+            noise: false,
+            denser: false,
+            pooled: true,
+            turned: true,
+            settings: keep,
+        },
         Variant {
             name: "no noise, pooled, NDF table twice as fine",
             noise: false,
             denser: false,
             pooled: true,
+            turned: false,
             settings: |s| s.grid = NdfGrid { n_theta: 2 * s.grid.n_theta, n_phi: 2 * s.grid.n_phi },
         },
         Variant {
@@ -84,6 +107,7 @@ fn variants() -> Vec<Variant> {
             noise: true,
             denser: false,
             pooled: false,
+            turned: false,
             settings: keep,
         },
         Variant {
@@ -91,6 +115,7 @@ fn variants() -> Vec<Variant> {
             noise: false,
             denser: false,
             pooled: false,
+            turned: false,
             settings: keep,
         },
         Variant {
@@ -98,6 +123,7 @@ fn variants() -> Vec<Variant> {
             noise: false,
             denser: false,
             pooled: false,
+            turned: false,
             settings: |s| s.bias_passes = 0,
         },
         Variant {
@@ -105,6 +131,7 @@ fn variants() -> Vec<Variant> {
             noise: false,
             denser: false,
             pooled: false,
+            turned: false,
             settings: |s| s.bias_passes = 2,
         },
         Variant {
@@ -112,6 +139,7 @@ fn variants() -> Vec<Variant> {
             noise: true,
             denser: false,
             pooled: false,
+            turned: false,
             settings: |s| s.bias_passes = 0,
         },
         Variant {
@@ -119,6 +147,7 @@ fn variants() -> Vec<Variant> {
             noise: false,
             denser: false,
             pooled: false,
+            turned: false,
             settings: |s| s.grid = NdfGrid { n_theta: 2 * s.grid.n_theta, n_phi: 2 * s.grid.n_phi },
         },
         Variant {
@@ -126,6 +155,7 @@ fn variants() -> Vec<Variant> {
             noise: false,
             denser: false,
             pooled: false,
+            turned: false,
             settings: |s| s.kernel_scale *= 0.5,
         },
         Variant {
@@ -133,6 +163,7 @@ fn variants() -> Vec<Variant> {
             noise: false,
             denser: false,
             pooled: false,
+            turned: false,
             settings: |s| {
                 s.max_masking_iterations = 12;
                 s.masking_tolerance = 1e-4;
@@ -143,6 +174,7 @@ fn variants() -> Vec<Variant> {
             noise: true,
             denser: false,
             pooled: false,
+            turned: false,
             settings: |s| s.kernel_scale *= 0.5,
         },
         Variant {
@@ -150,6 +182,7 @@ fn variants() -> Vec<Variant> {
             noise: true,
             denser: false,
             pooled: false,
+            turned: false,
             settings: |s| s.kernel_scale *= 0.7,
         },
         Variant {
@@ -157,6 +190,7 @@ fn variants() -> Vec<Variant> {
             noise: false,
             denser: false,
             pooled: false,
+            turned: false,
             settings: |s| s.fit_fresnel = false,
         },
         Variant {
@@ -164,6 +198,7 @@ fn variants() -> Vec<Variant> {
             noise: false,
             denser: true,
             pooled: false,
+            turned: false,
             settings: keep,
         },
     ]
@@ -187,7 +222,8 @@ pub fn run(sample: &str, q: &config::Quality) -> Result<Vec<Row>> {
         let mut settings = q.fit.clone();
         (v.settings)(&mut settings);
         let t = Instant::now();
-        let stages = fit::Stages { pool: q.pool.clone().filter(|_| v.pooled), ..fit::Stages::default() };
+        let pool = q.pool.clone().filter(|_| v.pooled).map(|p| fit::pooled::PoolSettings { turn: v.turned, ..p });
+        let stages = fit::Stages { pool, ..fit::Stages::default() };
         let maps = fit::pipeline::run_stages(&s.ctx, s.store.clone(), settings.clone(), &stages, &|| false)?.maps;
         let fit_s = t.elapsed().as_secs_f64();
         let row = score(v.name, &s, &maps, settings.grid, fit_s);

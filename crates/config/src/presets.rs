@@ -96,7 +96,7 @@ pub fn preset(name: &str) -> Option<Quality> {
                 seed: 7,
                 ..AnalyticSettings::default()
             },
-            pool: Some(PoolSettings { clusters: 16, seed: 1 }),
+            pool: Some(PoolSettings { clusters: 16, seed: 1, turn: false }),
         },
         "balanced" => Quality {
             name: name.into(),
@@ -117,7 +117,7 @@ pub fn preset(name: &str) -> Option<Quality> {
                 ..SynthSettings::default()
             },
             analytic: AnalyticSettings { models: all, clusters: 32, seed: 7, ..AnalyticSettings::default() },
-            pool: Some(PoolSettings { clusters: 32, seed: 1 }),
+            pool: Some(PoolSettings { clusters: 32, seed: 1, turn: false }),
         },
         "best" => Quality {
             name: name.into(),
@@ -139,7 +139,7 @@ pub fn preset(name: &str) -> Option<Quality> {
                 ..SynthSettings::default()
             },
             analytic: AnalyticSettings { models: all, clusters: 64, seed: 7, ..AnalyticSettings::default() },
-            pool: Some(PoolSettings { clusters: 64, seed: 1 }),
+            pool: Some(PoolSettings { clusters: 64, seed: 1, turn: false }),
         },
         _ => return None,
     };
