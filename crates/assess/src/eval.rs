@@ -14,6 +14,12 @@
 //!   table's cosine measure, over the observed cells and the whole
 //!   hemisphere, pooled over up to 1,024 points spread over the sample
 //!   (those the camera measured: the others hold no fit).
+//! - **The camera's resolution apart** (simulated captures): a point
+//!   measures the mean BRDF over its footprint (`crate::footprint`), so
+//!   the NDF errors are given again against that truth (`*_footprint`),
+//!   each model's renders are scored against renders of it as well
+//!   (`render_rel_rmse_resolved`), and that truth's own render error is the
+//!   resolution floor (`render_resolution_floor`).
 //! - **Hold-out**: for any capture, real or simulated, the material is
 //!   refitted without every 8th light and predicts those lights' samples;
 //!   `frame_rel_rmse` is the same relative error in reflectance over every

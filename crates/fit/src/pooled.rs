@@ -63,7 +63,8 @@
 //!    members' mean axis, and each member's half vectors are turned by its
 //!    difference before splatting (its masking and the chi-square likewise),
 //!    so the pool estimates one shape in the cluster's frame. An axis read
-//!    off a noisy own table is 5 to 10 degrees off (satin, fast preset), so
+//!    off a noisy own table is most often within 7.5 degrees of the one
+//!    the samples support, sometimes 10 to 20 off (satin, fast preset), so
 //!    the final clusters refine every member's turn by least chi-square
 //!    against the pooled table (+-20 degrees in 2.5 degree steps, then
 //!    +-2 degrees in 0.5), estimate the table again with those turns, and
@@ -71,10 +72,11 @@
 //!    pooled table turned by its turn. Members whose own table is too
 //!    nearly isotropic to have an axis ([`MIN_ECCENTRICITY`]) are not
 //!    turned. `refl bench budget` measures it in its "members turned" rows:
-//!    on satin and red-satin it lowers the pooled NDF error by a third, on
-//!    wallpaper it raises it fivefold (an isotropic surface whose partial
-//!    tables look elongated). It is therefore off until a test of when a
-//!    lobe has an axis holds on every sample.
+//!    at the fast preset it lowers satin's pooled NDF error from 0.107 to
+//!    0.060 and red-satin's from 0.121 to 0.090, and raises ward's from
+//!    0.063 to 0.072 and wallpaper's from 0.19 to 0.98 (an isotropic surface
+//!    whose partial tables look elongated). It is therefore off until a
+//!    test of when a lobe has an axis holds on every sample.
 //!
 //! The stage runs after synthesis: a pooled point's table is the pooled
 //! one on the cells the pool observed, joined with its own completed table
@@ -107,7 +109,8 @@ pub struct PoolSettings {
     /// its cluster's, so that points whose lobes turn across the sample
     /// share one shape (module notes, "Turned members"). Off in every
     /// preset: `refl bench budget` measures it (its "members turned"
-    /// rows), and it is not yet measured on whole captures.
+    /// rows), `scripts/refit-variant.sh --turn-members` on a stored
+    /// capture; it helps some samples and hurts others.
     #[serde(default)]
     pub turn: bool,
 }
@@ -570,7 +573,7 @@ fn choose(
     cluster: &[usize],
     est: &Estimate,
     own_observed: Option<&TableSet>,
-    turned: bool,
+    turn_members: bool,
 ) -> Vec<(usize, NdfTable, f32)> {
     cluster
         .iter()
@@ -581,7 +584,7 @@ fn choose(
             // The pooled table turned to the member, where the pool
             // observed; the point's own completed table beyond, agreeing in
             // mass over the pool's region.
-            let turn = if turned && mb.axis.is_some() { refine_turn(mb, &est.table, turn, false) } else { turn };
+            let turn = if turn_members && mb.axis.is_some() { refine_turn(mb, &est.table, turn, false) } else { turn };
             let turned = if turn == 0.0 { est.table.clone() } else { est.table.rotated(turn) };
             let pooled = Splatted { table: turned.clone(), k_s: 1.0 };
             let joined = join(&pooled, &own).map_or(turned, |j| j.table);
@@ -707,9 +710,10 @@ const FINE_STEPS: i32 = 4;
 /// The turn of the pooled `table` that explains a member's samples best
 /// (least chi-square at its best scale, under its own table's masking),
 /// searched about `turn`, the turn of its own table's axis: a noisy own
-/// table can put that axis 10 to 20 degrees off (measured on satin at the
-/// fast preset, `refl bench budget`), which a lobe of a few degrees does
-/// not forgive.
+/// table puts that axis up to 7.5 degrees off, some 10 to 20 (satin at
+/// the fast preset, `refl bench budget`), which a lobe a few degrees wide
+/// does not forgive. `coarse` searches +-20 degrees first; the fine
+/// search alone is +-2.
 fn refine_turn(mb: &Member, table: &NdfTable, turn: f32, coarse: bool) -> f32 {
     // Each sample's polar angle and azimuth once; a turn only shifts the
     // azimuth at which the table is read. `(theta, phi, s, w, f/denom)`.
