@@ -10,7 +10,13 @@
 //! member turned to its cluster's lobe axis (`fit::pooled::PoolSettings::turn`,
 //! off in the presets).
 //!
-//! What this budget does not cover: the camera (its Bayer mosaic,
+//! The row "through camera pixels" gives each point, without noise,
+//! the samples of the mean BRDF over its footprint in the preset's
+//! simulated camera (its Bayer demosaic and bilinear read,
+//! `crate::footprint`), still scored against the point's centre: the part of
+//! `refl eval`'s error that is the camera's resolution.
+//!
+//! What this budget does not cover otherwise: the camera (its
 //! quantisation, clipping, pixel response), the LEDs' true intensities and
 //! emission profile, and the calibration that estimates them. Those sit
 //! between the simulated rig and the sample store; `refl eval` on a full
@@ -37,7 +43,7 @@ use brdf::Brdf;
 use brdf::ndf::{MaskingOperator, NdfGrid, NdfTable};
 use glam::{Vec2, Vec3};
 
-use crate::bench::{Synthetic, synthetic};
+use crate::bench::{Synthetic, synthetic_through};
 
 /// One row of the budget.
 #[derive(Clone, Debug, serde::Serialize)]
@@ -63,6 +69,9 @@ struct Variant {
     /// Pool with each member turned to its cluster's axis
     /// (`fit::pooled::PoolSettings::turn`).
     turned: bool,
+    /// Each point's samples through the preset's simulated camera's pixel
+    /// footprint (`crate::bench::synthetic_through`).
+    footprint: bool,
     settings: fn(&mut fit::FitSettings),
 }
 
@@ -75,15 +84,34 @@ fn variants() -> Vec<Variant> {
             denser: false,
             pooled: true,
             turned: false,
+            footprint: false,
             settings: keep,
         },
-        Variant { name: "no noise, pooled", noise: false, denser: false, pooled: true, turned: false, settings: keep },
+        Variant {
+            name: "no noise, pooled",
+            noise: false,
+            denser: false,
+            pooled: true,
+            turned: false,
+            footprint: false,
+            settings: keep,
+        },
+        Variant {
+            name: "no noise, pooled, through camera pixels",
+            noise: false,
+            denser: false,
+            pooled: true,
+            turned: false,
+            footprint: true,
+            settings: keep,
+        },
         Variant {
             name: "as captured, pooled, members turned",
             noise: true,
             denser: false,
             pooled: true,
             turned: true,
+            footprint: false,
             settings: keep,
         },
         Variant {
@@ -92,6 +120,7 @@ fn variants() -> Vec<Variant> {
             denser: false,
             pooled: true,
             turned: true,
+            footprint: false,
             settings: keep,
         },
         Variant {
@@ -100,6 +129,7 @@ fn variants() -> Vec<Variant> {
             denser: false,
             pooled: true,
             turned: false,
+            footprint: false,
             settings: |s| s.grid = NdfGrid { n_theta: 2 * s.grid.n_theta, n_phi: 2 * s.grid.n_phi },
         },
         Variant {
@@ -108,6 +138,7 @@ fn variants() -> Vec<Variant> {
             denser: false,
             pooled: false,
             turned: false,
+            footprint: false,
             settings: keep,
         },
         Variant {
@@ -116,6 +147,7 @@ fn variants() -> Vec<Variant> {
             denser: false,
             pooled: false,
             turned: false,
+            footprint: false,
             settings: keep,
         },
         Variant {
@@ -124,6 +156,7 @@ fn variants() -> Vec<Variant> {
             denser: false,
             pooled: false,
             turned: false,
+            footprint: false,
             settings: |s| s.bias_passes = 0,
         },
         Variant {
@@ -132,6 +165,7 @@ fn variants() -> Vec<Variant> {
             denser: false,
             pooled: false,
             turned: false,
+            footprint: false,
             settings: |s| s.bias_passes = 2,
         },
         Variant {
@@ -140,6 +174,7 @@ fn variants() -> Vec<Variant> {
             denser: false,
             pooled: false,
             turned: false,
+            footprint: false,
             settings: |s| s.bias_passes = 0,
         },
         Variant {
@@ -148,6 +183,7 @@ fn variants() -> Vec<Variant> {
             denser: false,
             pooled: false,
             turned: false,
+            footprint: false,
             settings: |s| s.grid = NdfGrid { n_theta: 2 * s.grid.n_theta, n_phi: 2 * s.grid.n_phi },
         },
         Variant {
@@ -156,6 +192,7 @@ fn variants() -> Vec<Variant> {
             denser: false,
             pooled: false,
             turned: false,
+            footprint: false,
             settings: |s| s.kernel_scale *= 0.5,
         },
         Variant {
@@ -164,6 +201,7 @@ fn variants() -> Vec<Variant> {
             denser: false,
             pooled: false,
             turned: false,
+            footprint: false,
             settings: |s| {
                 s.max_masking_iterations = 12;
                 s.masking_tolerance = 1e-4;
@@ -175,6 +213,7 @@ fn variants() -> Vec<Variant> {
             denser: false,
             pooled: false,
             turned: false,
+            footprint: false,
             settings: |s| s.kernel_scale *= 0.5,
         },
         Variant {
@@ -183,6 +222,7 @@ fn variants() -> Vec<Variant> {
             denser: false,
             pooled: false,
             turned: false,
+            footprint: false,
             settings: |s| s.kernel_scale *= 0.7,
         },
         Variant {
@@ -191,6 +231,7 @@ fn variants() -> Vec<Variant> {
             denser: false,
             pooled: false,
             turned: false,
+            footprint: false,
             settings: |s| s.fit_fresnel = false,
         },
         Variant {
@@ -199,6 +240,7 @@ fn variants() -> Vec<Variant> {
             denser: true,
             pooled: false,
             turned: false,
+            footprint: false,
             settings: keep,
         },
     ]
@@ -218,7 +260,7 @@ pub fn run(sample: &str, q: &config::Quality) -> Result<Vec<Row>> {
     let mut rows = Vec::new();
     for v in variants() {
         let (steps, stride) = if v.denser { (2 * q.steps, 1) } else { (q.steps, q.led_stride as u32) };
-        let s = synthetic(material.clone(), q.grid, steps, stride, v.noise)?;
+        let s = synthetic_through(material.clone(), q.grid, steps, stride, v.noise, v.footprint.then(|| camera(q)))?;
         let mut settings = q.fit.clone();
         (v.settings)(&mut settings);
         let t = Instant::now();
@@ -234,6 +276,15 @@ pub fn run(sample: &str, q: &config::Quality) -> Result<Vec<Row>> {
         rows.push(row);
     }
     Ok(rows)
+}
+
+/// The preset's simulated camera (the rig file's, read at the preset's
+/// size, as `capture` reads it) and its Bayer sensor.
+fn camera(q: &config::Quality) -> (setup::CameraModel, frame::Layout) {
+    let rig = config::RigFile::parse(config::rigfile::DEFAULT_RIG, "embedded simulated rig");
+    let mut cam = rig.map(|r| r.geometry()).unwrap_or_default().camera;
+    (cam.width, cam.height) = (q.sim_camera_px, q.sim_camera_px);
+    (cam, frame::Layout::Bayer { pattern: sim::camera::SensorModel::default().pattern })
 }
 
 fn score(name: &str, s: &Synthetic, maps: &fit::points::PointMaps, grid: NdfGrid, fit_s: f64) -> Row {

@@ -109,19 +109,29 @@ impl SvBrdf for Resolved {
     }
 
     fn at(&self, p_mm: Vec2) -> PointMaterial {
-        let taps = self
-            .material
-            .point_at(p_mm)
-            .map(|p| self.material.grid.position_of(&self.material.sample, p))
-            .and_then(|pos| taps(&self.camera, self.layout, &self.material.sample, pos));
-        let Some(taps) = taps else { return self.truth.at(p_mm) };
-        let total: f32 = taps.iter().map(|t| t.2).sum();
-        if !(total > 0.0) {
-            return self.truth.at(p_mm);
-        }
-        let parts = taps.iter().map(|&(q, _, b)| (b / total, self.truth.at(q))).collect();
-        PointMaterial::Model(Arc::new(Mean { parts }))
+        let pos = self.material.point_at(p_mm).map(|p| self.material.grid.position_of(&self.material.sample, p));
+        pos.and_then(|pos| mean_at(&self.camera, self.layout, &self.material.sample, self.truth.as_ref(), pos))
+            .unwrap_or_else(|| self.truth.at(p_mm))
     }
+}
+
+/// The mean BRDF over the footprint of a value read at `pos` ([`taps`]),
+/// each tap weighted by its luminance share: what that point measures.
+/// `None` where [`taps`] is or has no weight.
+pub fn mean_at(
+    cam: &CameraModel,
+    layout: Option<Layout>,
+    sample: &SampleArea,
+    truth: &dyn SvBrdf,
+    pos: Vec2,
+) -> Option<PointMaterial> {
+    let taps = taps(cam, layout, sample, pos)?;
+    let total: f32 = taps.iter().map(|t| t.2).sum();
+    if !(total > 0.0) {
+        return None;
+    }
+    let parts = taps.iter().map(|&(q, _, b)| (b / total, truth.at(q))).collect();
+    Some(PointMaterial::Model(Arc::new(Mean { parts })))
 }
 
 /// A weighted mean of BRDFs.
