@@ -5,7 +5,8 @@
 //! Where the material varies within that footprint (satin's weave cells
 //! are 2.5 mm), no fit of the point's samples can reach the centre's BRDF;
 //! `refl eval` scores against both truths so that the camera's resolution
-//! and the fitter's error are told apart.
+//! and the fitter's error are told apart, and `refl bench budget` reads
+//! one row's synthetic samples through the footprint ([`mean_at`]).
 //!
 //! The footprint is located through the capture's camera as the fitter
 //! located its points (`capture.json`'s geometry, the calibrated one), so
