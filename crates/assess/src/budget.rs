@@ -75,174 +75,76 @@ struct Variant {
     settings: fn(&mut fit::FitSettings),
 }
 
+/// The preset's capture (with its noise) fitted per point alone: what
+/// each variant departs from.
+const AS_CAPTURED: Variant =
+    Variant { name: "", noise: true, denser: false, pooled: false, turned: false, footprint: false, settings: |_| {} };
+
 fn variants() -> Vec<Variant> {
-    let keep: fn(&mut fit::FitSettings) = |_| {};
     vec![
-        Variant {
-            name: "as captured, pooled (the preset's fit)",
-            noise: true,
-            denser: false,
-            pooled: true,
-            turned: false,
-            footprint: false,
-            settings: keep,
-        },
-        Variant {
-            name: "no noise, pooled",
-            noise: false,
-            denser: false,
-            pooled: true,
-            turned: false,
-            footprint: false,
-            settings: keep,
-        },
+        Variant { name: "as captured, pooled (the preset's fit)", pooled: true, ..AS_CAPTURED },
+        Variant { name: "no noise, pooled", noise: false, pooled: true, ..AS_CAPTURED },
         Variant {
             name: "no noise, pooled, through camera pixels",
             noise: false,
-            denser: false,
             pooled: true,
-            turned: false,
             footprint: true,
-            settings: keep,
+            ..AS_CAPTURED
         },
-        Variant {
-            name: "as captured, pooled, members turned",
-            noise: true,
-            denser: false,
-            pooled: true,
-            turned: true,
-            footprint: false,
-            settings: keep,
-        },
-        Variant {
-            name: "no noise, pooled, members turned",
-            noise: false,
-            denser: false,
-            pooled: true,
-            turned: true,
-            footprint: false,
-            settings: keep,
-        },
+        Variant { name: "as captured, pooled, members turned", pooled: true, turned: true, ..AS_CAPTURED },
+        Variant { name: "no noise, pooled, members turned", noise: false, pooled: true, turned: true, ..AS_CAPTURED },
         Variant {
             name: "no noise, pooled, NDF table twice as fine",
             noise: false,
-            denser: false,
             pooled: true,
-            turned: false,
-            footprint: false,
             settings: |s| s.grid = NdfGrid { n_theta: 2 * s.grid.n_theta, n_phi: 2 * s.grid.n_phi },
+            ..AS_CAPTURED
         },
-        Variant {
-            name: "as captured, per point (no pooling)",
-            noise: true,
-            denser: false,
-            pooled: false,
-            turned: false,
-            footprint: false,
-            settings: keep,
-        },
-        Variant {
-            name: "no noise, per point (the method's own bias)",
-            noise: false,
-            denser: false,
-            pooled: false,
-            turned: false,
-            footprint: false,
-            settings: keep,
-        },
+        Variant { name: "as captured, per point (no pooling)", ..AS_CAPTURED },
+        Variant { name: "no noise, per point (the method's own bias)", noise: false, ..AS_CAPTURED },
         Variant {
             name: "no noise, per point, no bias correction",
             noise: false,
-            denser: false,
-            pooled: false,
-            turned: false,
-            footprint: false,
             settings: |s| s.bias_passes = 0,
+            ..AS_CAPTURED
         },
         Variant {
             name: "no noise, per point, two bias corrections",
             noise: false,
-            denser: false,
-            pooled: false,
-            turned: false,
-            footprint: false,
             settings: |s| s.bias_passes = 2,
+            ..AS_CAPTURED
         },
-        Variant {
-            name: "as captured, per point, no bias correction",
-            noise: true,
-            denser: false,
-            pooled: false,
-            turned: false,
-            footprint: false,
-            settings: |s| s.bias_passes = 0,
-        },
+        Variant { name: "as captured, per point, no bias correction", settings: |s| s.bias_passes = 0, ..AS_CAPTURED },
         Variant {
             name: "no noise, NDF table twice as fine",
             noise: false,
-            denser: false,
-            pooled: false,
-            turned: false,
-            footprint: false,
             settings: |s| s.grid = NdfGrid { n_theta: 2 * s.grid.n_theta, n_phi: 2 * s.grid.n_phi },
+            ..AS_CAPTURED
         },
         Variant {
             name: "no noise, splat kernel half as wide",
             noise: false,
-            denser: false,
-            pooled: false,
-            turned: false,
-            footprint: false,
             settings: |s| s.kernel_scale *= 0.5,
+            ..AS_CAPTURED
         },
         Variant {
             name: "no noise, masking iterated to convergence",
             noise: false,
-            denser: false,
-            pooled: false,
-            turned: false,
-            footprint: false,
             settings: |s| {
                 s.max_masking_iterations = 12;
                 s.masking_tolerance = 1e-4;
             },
+            ..AS_CAPTURED
         },
-        Variant {
-            name: "as captured, splat kernel half as wide",
-            noise: true,
-            denser: false,
-            pooled: false,
-            turned: false,
-            footprint: false,
-            settings: |s| s.kernel_scale *= 0.5,
-        },
-        Variant {
-            name: "as captured, splat kernel 0.7 as wide",
-            noise: true,
-            denser: false,
-            pooled: false,
-            turned: false,
-            footprint: false,
-            settings: |s| s.kernel_scale *= 0.7,
-        },
+        Variant { name: "as captured, splat kernel half as wide", settings: |s| s.kernel_scale *= 0.5, ..AS_CAPTURED },
+        Variant { name: "as captured, splat kernel 0.7 as wide", settings: |s| s.kernel_scale *= 0.7, ..AS_CAPTURED },
         Variant {
             name: "no noise, Fresnel not fitted",
             noise: false,
-            denser: false,
-            pooled: false,
-            turned: false,
-            footprint: false,
             settings: |s| s.fit_fresnel = false,
+            ..AS_CAPTURED
         },
-        Variant {
-            name: "no noise, twice the steps and every LED",
-            noise: false,
-            denser: true,
-            pooled: false,
-            turned: false,
-            footprint: false,
-            settings: keep,
-        },
+        Variant { name: "no noise, twice the steps and every LED", noise: false, denser: true, ..AS_CAPTURED },
     ]
 }
 

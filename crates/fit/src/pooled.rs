@@ -63,8 +63,8 @@
 //!    members' mean axis, and each member's half vectors are turned by its
 //!    difference before splatting (its masking and the chi-square likewise),
 //!    so the pool estimates one shape in the cluster's frame. An axis read
-//!    off a noisy own table is most often within 7.5 degrees of the one
-//!    the samples support, sometimes 10 to 20 off (satin, fast preset), so
+//!    off a noisy own table is several degrees from the one its samples
+//!    support, which a lobe a few degrees wide does not forgive, so
 //!    the final clusters refine every member's turn by least chi-square
 //!    against the pooled table (+-20 degrees in 2.5 degree steps, then
 //!    +-2 degrees in 0.5), estimate the table again with those turns, and
@@ -250,23 +250,8 @@ pub fn pool(
         .par_iter()
         .map(|cluster| {
             let est = (cluster.len() >= MIN_MEMBERS).then(|| estimate(settings, op, &members, cluster)).flatten();
-            // Turned members: each one's turn refined against the table,
-            // and the table estimated again with those turns.
-            let est = if pool.turn {
-                est.and_then(|e| {
-                    let turns =
-                        cluster
-                            .iter()
-                            .zip(&e.turns)
-                            .map(|(&j, &t)| {
-                                if members[j].axis.is_some() { refine_turn(&members[j], &e.table, t, true) } else { t }
-                            })
-                            .collect();
-                    estimate_turned(settings, op, &members, cluster, Some(turns))
-                })
-            } else {
-                est
-            };
+            let est =
+                if pool.turn { est.and_then(|e| estimate_refined(settings, op, &members, cluster, &e)) } else { est };
             ctx.progress.advance(cluster.len() as u64);
             est.map(|e| choose(maps_ref, op, &members, cluster, &e, observed, pool.turn))
         })
@@ -434,6 +419,23 @@ fn estimate(settings: &FitSettings, op: &MaskingOperator, members: &[Member], cl
     estimate_turned(settings, op, members, cluster, None)
 }
 
+/// The table of `cluster` estimated again with the turn of every member
+/// that has an axis refined against `est`'s table ([`refine_turn`]).
+fn estimate_refined(
+    settings: &FitSettings,
+    op: &MaskingOperator,
+    members: &[Member],
+    cluster: &[usize],
+    est: &Estimate,
+) -> Option<Estimate> {
+    let refined = |(&j, &t): (&usize, &f32)| {
+        let mb = &members[j];
+        if mb.axis.is_some() { refine_turn(mb, &est.table, t, true) } else { t }
+    };
+    let turns = cluster.iter().zip(&est.turns).map(refined).collect();
+    estimate_turned(settings, op, members, cluster, Some(turns))
+}
+
 /// The pooled table with each member turned by `turns` (in the cluster's
 /// order; by its axis' turn from the cluster's axis when `None`).
 fn estimate_turned(
@@ -482,6 +484,16 @@ fn estimate_turned(
     let mut masking: Vec<Vec<f32>> =
         cluster.iter().map(|&j| members[j].samples.iter().map(|x| x.own_masking).collect()).collect();
     let mut k_s: Vec<f32> = cluster.iter().map(|&j| members[j].k_s).collect();
+    // A turned member's lights located in the cluster's frame, once for
+    // every round (an unturned one's are its samples' own).
+    let lights: Vec<Option<Vec<MaskingCell>>> = cluster
+        .par_iter()
+        .zip(&turns)
+        .map(|(&j, &turn)| {
+            let (mb, back) = (&members[j], Unturn::new(turn));
+            (turn != 0.0).then(|| mb.samples.iter().map(|x| op.locate(back.apply(light_of(x.h, mb.o)))).collect())
+        })
+        .collect();
     let mut table = NdfTable::zeros(grid);
     let mut fits: Vec<Fit> = Vec::new();
     let layout = SplatLayout { grid, kernels, confidence: &confidence, covered: &covered };
@@ -531,15 +543,13 @@ fn estimate_turned(
         (fits, masking) = cluster
             .par_iter()
             .zip(&turns)
-            .map(|(&j, &turn)| {
+            .zip(&lights)
+            .map(|((&j, &turn), lights)| {
                 let mb = &members[j];
-                let back = Unturn::new(turn);
-                let sigma_o = m.projected_area(back.apply(mb.o));
-                let masking: Vec<f32> = if turn == 0.0 {
-                    mb.samples.iter().map(|x| 4.0 * m.projected_area_at(&x.i) * sigma_o).collect()
-                } else {
-                    let at = |x: &PoolSample| m.projected_area_at(&op.locate(back.apply(light_of(x.h, mb.o))));
-                    mb.samples.iter().map(|x| 4.0 * at(x) * sigma_o).collect()
+                let sigma_o = m.projected_area(Unturn::new(turn).apply(mb.o));
+                let masking: Vec<f32> = match lights {
+                    None => mb.samples.iter().map(|x| 4.0 * m.projected_area_at(&x.i) * sigma_o).collect(),
+                    Some(cells) => cells.iter().map(|c| 4.0 * m.projected_area_at(c) * sigma_o).collect(),
                 };
                 (Fit::with(mb, &table, turn, masking.iter().copied()), masking)
             })
@@ -658,11 +668,12 @@ fn lobe_axis(table: &NdfTable) -> Option<f32> {
 /// principal moments over their sum) for its lobe to have an axis: an
 /// isotropic lobe read off a partial, noisy table has a small one in a
 /// random direction, and turning its samples by it only scatters them.
-/// Satin's threads (`alpha` 0.1 by 0.35) have about 0.85. Not enough on its
-/// own: a partial table cut off by its observed region looks elongated,
-/// and in `refl bench budget` (whose tables are partial: no synthesis)
-/// 396 of wallpaper's 1,219 isotropic points pass it and its pooled NDF
-/// error goes from 0.19 to 0.98 with `turn` (0.63 with no threshold).
+/// A whole Beckmann lobe has `(a_y^2 - a_x^2) / (a_y^2 + a_x^2)`: 0.85 for
+/// satin's threads (`alpha` 0.1 by 0.35). Not enough on its own: a partial
+/// table cut off by its observed region looks elongated, and in `refl
+/// bench budget` (whose tables are partial: no synthesis) wallpaper, an
+/// isotropic surface, has its pooled NDF error go from 0.19 to 0.98 with
+/// `turn`.
 const MIN_ECCENTRICITY: f64 = 0.3;
 
 /// The axis of a cluster: the mean of its members' axes as axes (angles
@@ -709,11 +720,9 @@ const FINE_STEPS: i32 = 4;
 
 /// The turn of the pooled `table` that explains a member's samples best
 /// (least chi-square at its best scale, under its own table's masking),
-/// searched about `turn`, the turn of its own table's axis: a noisy own
-/// table puts that axis up to 7.5 degrees off, some 10 to 20 (satin at
-/// the fast preset, `refl bench budget`), which a lobe a few degrees wide
-/// does not forgive. `coarse` searches +-20 degrees first; the fine
-/// search alone is +-2.
+/// searched about `turn`, the turn of its own table's axis, which noise
+/// puts several degrees off. `coarse` searches +-20 degrees first; the
+/// fine search alone is +-2.
 fn refine_turn(mb: &Member, table: &NdfTable, turn: f32, coarse: bool) -> f32 {
     // Each sample's polar angle and azimuth once; a turn only shifts the
     // azimuth at which the table is read. `(theta, phi, s, w, f/denom)`.
