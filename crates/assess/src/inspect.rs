@@ -146,29 +146,38 @@ fn print_choice(e: &fit::select::SelectionSummary) {
         ScoredOn::FitSamples => "the fit's own samples (too few steps to hold any out; favours the table)",
     };
     println!(
-        "  why: per region, RMS residual / noise RMS on {on}; an analytic class's score counts the table at the points where it fails as an outlier (stand-ins); the simplest class whose ratio^2 is within its margin of the best's is chosen (margins: 2 deviations of the difference, the noise's or the points' spread, whichever is larger); \"tables\" counts the points of a region that chose an analytic class kept on their tables"
+        "  why: per region, RMS residual / noise RMS on {on}; the diffuse class is the point's diffuse albedo alone; a simpler class's score counts the table at the points where it fails as an outlier (stand-ins); the simplest class whose ratio^2 is within its margin of the best's is chosen (margins: 2 deviations of the difference, the noise's or the points' spread, whichever is larger); \"tables\" counts the points of a region that chose a simpler class kept on their tables; a region none of whose points was scored takes the material's class (\"material\" below, marked *)"
     );
     let (iso, aniso) = (e.isotropic_model.as_str(), e.anisotropic_model.as_str());
     println!(
-        "  {:>6} {:>7} {:>8} {:>11} {:>11} {:>10} {:>20} {:>10} {:>6}  chosen",
-        "region", "points", "samples", iso, aniso, "tabulated", "margins", "stand-ins", "tables"
+        "  {:>8} {:>7} {:>8} {:>8} {:>11} {:>11} {:>10} {:>27} {:>10} {:>6}  chosen",
+        "region", "points", "samples", "diffuse", iso, aniso, "tabulated", "margins", "stand-ins", "tables"
     );
     let names = ["diffuse", iso, aniso, "tabulated"];
     let f = |x: Option<f32>| x.map_or("-".to_string(), |v| format!("{v:.3}"));
-    for (k, r) in e.regions.iter().enumerate() {
+    let row = |name: String, r: &fit::select::RegionChoice| {
+        let margins: Vec<String> = std::iter::once(r.diffuse_margin).chain(r.margin).map(f).collect();
         println!(
-            "  {:>6} {:>7} {:>8} {:>11} {:>11} {:>10} {:>20} {:>10} {:>6}  {}",
-            k,
+            "  {:>8} {:>7} {:>8} {:>8} {:>11} {:>11} {:>10} {:>27} {:>10} {:>6}  {}{}",
+            name,
             r.points,
             r.samples,
+            f(r.diffuse_ratio),
             f(r.ratio[0]),
             f(r.ratio[1]),
             f(r.ratio[2]),
-            r.margin.map(f).join("/"),
-            format!("{}/{}", r.stand_ins[0], r.stand_ins[1]),
+            margins.join("/"),
+            format!("{}/{}/{}", r.diffuse_stand_ins, r.stand_ins[0], r.stand_ins[1]),
             r.tabulated_points,
-            names.get(r.chosen as usize).unwrap_or(&"?")
+            names.get(r.chosen as usize).unwrap_or(&"?"),
+            if r.from_material { " *" } else { "" }
         );
+    };
+    for (k, r) in e.regions.iter().enumerate() {
+        row(k.to_string(), r);
+    }
+    if let Some(m) = &e.material {
+        row("material".into(), m);
     }
 }
 

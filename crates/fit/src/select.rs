@@ -2,12 +2,14 @@
 //! like NDFs), the simplest class of model that predicts data it was not
 //! fitted to as well as any other.
 //!
-//! **Classes**, simplest first: diffuse (the points whose own fit found no
-//! measurable specular), an isotropic analytic lobe (Cook-Torrance), an
-//! anisotropic analytic lobe (GGX or Beckmann: of the two, the one with the
-//! lower total score over the material), and the tabulated NDF (the
-//! material's pooled table, or the point's own where pooling's test kept
-//! it).
+//! **Classes**, simplest first: diffuse (the point's diffuse albedo alone,
+//! as the material renders it; the points whose own fit found no
+//! measurable specular are diffuse without a choice), an isotropic
+//! analytic lobe (Cook-Torrance), an anisotropic analytic lobe (GGX or
+//! Beckmann: of the two, the one with the lower total score over the
+//! material), and the tabulated NDF (the material's pooled table, or the
+//! point's own where pooling's test kept it). A lobe too faint for the
+//! held-out samples to tell from the diffuse part is not modelled.
 //!
 //! **Why only microfacet lobes.** The rig sees the sample from one
 //! direction, so no held-out data can tell how a model extrapolates to
@@ -36,12 +38,19 @@
 //! **Stand-ins.** A cluster's analytic shape can fail at a few of its
 //! points by orders of magnitude (a lobe sharper than the lights' spacing
 //! that a point's amplitude turns into a spike where a held-out light
-//! falls) while it predicts as well as the table elsewhere. Per
-//! region and analytic class, a point whose excess score over the table is
+//! falls) while it predicts as well as the table elsewhere; so can the
+//! diffuse class at the few glossy points of a matte region. Per
+//! region and simpler class, a point whose excess score over the table is
 //! an outlier among the region's excesses and beyond the noise at the point
 //! keeps its table ([`stand_ins`]); the class's region score counts the
 //! table there. Only the refit's points are scored (a quarter of a large
 //! grid), so only they can be found; the rest take the region's class.
+//!
+//! **Regions without evidence.** A small cluster may have none of its
+//! points in the refit. It takes the class that the whole material's
+//! scored points choose as one region: the evidence nearest to it, where
+//! the most complex class (the default before) rendered brushed metal's
+//! unscored regions with tables far coarser than its lobe.
 //!
 //! **Choice.** Per cluster, the class with the lowest score wins, unless a
 //! simpler class's score is within [`NOISE_SIGMAS`] standard deviations of
@@ -106,38 +115,58 @@ pub struct Scores {
     pub model_sse: Vec<Vec<f64>>,
     /// The tabulated model's per-point sums.
     pub table_sse: Vec<f64>,
+    /// The diffuse model's (the point's diffuse albedo alone, as the
+    /// material renders a point it calls diffuse) per-point sums.
+    pub diffuse_sse: Vec<f64>,
     /// Per point: samples scored, `sum s_j^2` and `sum s_j^4` of their
     /// cosine-weighted noise variances.
     pub n: Vec<u32>,
     pub noise_ss: Vec<f64>,
     pub noise_ss2: Vec<f64>,
     /// Per point, per pair of predictors `(a, b)` (the models in order,
-    /// then the table): `sum_j (r_aj - r_bj)^2 s_j^2`, the residuals'
+    /// then the table, then the diffuse model): `sum_j (r_aj - r_bj)^2 s_j^2`, the residuals'
     /// difference squared times the sample's noise variance, all
     /// cosine-weighted: a quarter of the noise's variance of the
     /// difference of the two scores. With `r = (f - y) cos` and `y` noisy
     /// with variance `s^2`, `r_a^2 - r_b^2 = (r_a - r_b)(r_a + r_b)`, whose
     /// noise is `(r_a - r_b)` times a term of variance `4 s^2 cos^2`.
-    /// Row-major `(models + 1)^2` per point.
+    /// Row-major `(models + 2)^2` per point.
     pub pair_var: Vec<f64>,
 }
 
 impl Scores {
     /// Predictor `a`'s score at point `p` (the models in order, then the
-    /// table).
+    /// table, then the diffuse model).
     pub fn sse(&self, a: usize, p: usize) -> f64 {
-        if a == self.models.len() { self.table_sse[p] } else { self.model_sse[a][p] }
+        let m = self.models.len();
+        if a == m {
+            self.table_sse[p]
+        } else if a == m + 1 {
+            self.diffuse_sse[p]
+        } else {
+            self.model_sse[a][p]
+        }
+    }
+
+    /// The index of the tabulated predictor.
+    pub fn table(&self) -> usize {
+        self.models.len()
+    }
+
+    /// The index of the diffuse predictor.
+    pub fn diffuse(&self) -> usize {
+        self.models.len() + 1
     }
 
     /// [`Scores::pair_var`] of predictors `a` and `b` at point `p`.
     pub fn pair(&self, p: usize, a: usize, b: usize) -> f64 {
-        let w = self.models.len() + 1;
+        let w = self.models.len() + 2;
         self.pair_var[p * w * w + a * w + b]
     }
 }
 
-/// Score the tabulated model of `maps` and every fitted analytic model on
-/// each point's `samples` (seen from `view[p]`).
+/// Score the tabulated model of `maps`, its diffuse part alone and every
+/// fitted analytic model on each point's `samples` (seen from `view[p]`).
 pub fn scores(on: ScoredOn, samples: &[Vec<Sample>], view: &[Vec3], maps: &PointMaps, fits: &[ModelFit]) -> Scores {
     let op = MaskingOperator::new(maps.tables.grid());
     let n_params: Vec<usize> = fits.iter().map(|f| f.model.n_params()).collect();
@@ -159,17 +188,20 @@ pub fn scores(on: ScoredOn, samples: &[Vec<Sample>], view: &[Vec3], maps: &Point
             } else {
                 Box::new(brdf::model::Lambert { albedo: kd })
             };
+            let diffuse = brdf::model::Lambert { albedo: kd };
             let models: Vec<Option<std::sync::Arc<dyn Brdf>>> = fits
                 .iter()
                 .zip(&n_params)
                 .map(|(f, &k)| f.params.get(p * k..(p + 1) * k).and_then(|q| f.model.build(q)))
                 .collect();
-            // Per predictor (the models, then the table): the sum of
-            // squared residuals; per pair, the sum of squared differences
-            // of their residuals times each sample's noise variance.
-            let mut sse = vec![0.0f64; m + 1];
-            let mut pair = vec![0.0f64; (m + 1) * (m + 1)];
-            let mut r = vec![0.0f64; m + 1];
+            // Per predictor (the models, the table, the diffuse part): the
+            // sum of squared residuals; per pair, the sum of squared
+            // differences of their residuals times each sample's noise
+            // variance.
+            let w = m + 2;
+            let mut sse = vec![0.0f64; w];
+            let mut pair = vec![0.0f64; w * w];
+            let mut r = vec![0.0f64; w];
             let (mut ss, mut ss2) = (0.0f64, 0.0f64);
             for x in s {
                 let c = x.i.z as f64;
@@ -178,15 +210,16 @@ pub fn scores(on: ScoredOn, samples: &[Vec<Sample>], view: &[Vec3], maps: &Point
                     r[k] = b.as_ref().map_or(f64::NAN, |b| (lum(b.eval(x.i, o).to_array()) as f64 - y) * c);
                 }
                 r[m] = (lum(table.eval(x.i, o).to_array()) as f64 - y) * c;
+                r[m + 1] = (lum(diffuse.eval(x.i, o).to_array()) as f64 - y) * c;
                 let v = x.var as f64 * c * c;
                 ss += v;
                 ss2 += v * v;
-                for a in 0..=m {
+                for a in 0..w {
                     sse[a] += r[a] * r[a];
-                    for b in a + 1..=m {
+                    for b in a + 1..w {
                         let d = (r[a] - r[b]).powi(2) * v;
-                        pair[a * (m + 1) + b] += d;
-                        pair[b * (m + 1) + a] += d;
+                        pair[a * w + b] += d;
+                        pair[b * w + a] += d;
                     }
                 }
             }
@@ -197,6 +230,7 @@ pub fn scores(on: ScoredOn, samples: &[Vec<Sample>], view: &[Vec3], maps: &Point
     out.model_sse = vec![Vec::with_capacity(maps.len()); m];
     for (sse, n, ss, ss2, pair) in per_point {
         out.table_sse.push(sse[m]);
+        out.diffuse_sse.push(sse[m + 1]);
         for (k, v) in sse.into_iter().take(m).enumerate() {
             out.model_sse[k].push(v);
         }
@@ -236,6 +270,17 @@ pub struct RegionChoice {
     #[serde(default)]
     pub tabulated_points: usize,
     pub chosen: u8,
+    /// The diffuse class's ratio, margin and stand-ins, as the others'
+    /// (absent from materials made before it was a candidate).
+    #[serde(default)]
+    pub diffuse_ratio: Option<f32>,
+    #[serde(default)]
+    pub diffuse_margin: Option<f32>,
+    #[serde(default)]
+    pub diffuse_stand_ins: usize,
+    /// No point of the region was scored: it took the material's class.
+    #[serde(default)]
+    pub from_material: bool,
 }
 
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -252,6 +297,10 @@ pub struct SelectionSummary {
     pub ratio: [f32; 4],
     #[serde(default)]
     pub regions: Vec<RegionChoice>,
+    /// The whole material's evidence taken as one region: the class of a
+    /// region none of whose points was scored.
+    #[serde(default)]
+    pub material: Option<RegionChoice>,
     /// Bytes per point of each representation.
     pub bytes_per_point: [usize; 4],
     /// Storage if every point kept its tabulated NDF, and with the choice.
@@ -279,8 +328,9 @@ pub fn is_candidate(m: AnalyticModel) -> bool {
 }
 
 /// Choose per cluster (`cluster[p]`, `u32::MAX` or `>= clusters` for
-/// points outside every cluster) from `scores`; `None` if neither an
-/// isotropic nor an anisotropic analytic model was scored.
+/// points outside every cluster) from `scores`, a cluster without scored
+/// points taking the material's class; `None` if neither an isotropic nor
+/// an anisotropic analytic model was scored.
 pub fn select(maps: &PointMaps, cluster: &[u32], clusters: usize, scores: &Scores) -> Option<Selection> {
     let n = maps.len();
     let specular: Vec<usize> =
@@ -303,60 +353,21 @@ pub fn select(maps: &PointMaps, cluster: &[u32], clusters: usize, scores: &Score
     for &p in &specular {
         members[cluster[p] as usize].push(p);
     }
+    let predictor = [scores.diffuse(), iso, aniso, scores.table()];
+    // The whole material as one region: the choice of a region none of
+    // whose points was scored.
+    let material = decide(scores, &specular, &predictor, None);
+    let fallback = (material.noise > 0.0).then_some(material.k);
     let mut choice = vec![DIFFUSE; n];
     let mut regions = Vec::new();
-    let table = scores.models.len();
-    let predictor = [iso, aniso, table];
     for m in members.iter().filter(|m| !m.is_empty()) {
-        let sum = |f: &dyn Fn(usize) -> f64| m.iter().map(|&p| f(p)).sum::<f64>();
-        let noise = sum(&|p| scores.noise_ss[p]);
-        let sd = (2.0 * sum(&|p| scores.noise_ss2[p])).sqrt();
-        // Per analytic class, the members where the table stands in.
-        let stand_in: [Vec<bool>; 2] = std::array::from_fn(|k| stand_ins(scores, m, predictor[k], table));
-        // The predictor class `k` uses at the region's `i`-th point.
-        let at = |k: usize, i: usize| if k < 2 && stand_in[k][i] { table } else { predictor[k] };
-        let class_sse: [f64; 3] =
-            std::array::from_fn(|k| m.iter().enumerate().map(|(i, &p)| scores.sse(at(k, i), p)).sum());
-        let best = class_sse.iter().copied().filter(|x| x.is_finite()).fold(f64::INFINITY, f64::min);
-        let best_k = class_sse.iter().position(|&x| x == best).unwrap_or(2);
-        let margin: [f64; 3] = std::array::from_fn(|k| {
-            let noise_sd =
-                2.0 * m.iter().enumerate().map(|(i, &p)| scores.pair(p, at(k, i), at(best_k, i))).sum::<f64>().sqrt();
-            let d = m
-                .iter()
-                .enumerate()
-                .filter(|&(_, &p)| scores.n[p] > 0)
-                .map(|(i, &p)| scores.sse(at(k, i), p) - scores.sse(at(best_k, i), p));
-            NOISE_SIGMAS * noise_sd.max(paired_sd(d))
-        });
-        // Simplest first; a class unusable at any member is out. A region
-        // with no scored sample (none of its points in the choice's refit)
-        // keeps the full model: the table.
-        let k = if noise > 0.0 {
-            (0..3).position(|k| class_sse[k].is_finite() && class_sse[k] <= best + margin[k]).unwrap_or(2)
-        } else {
-            2
-        };
-        let class = [ISOTROPIC, ANISOTROPIC, TABULATED][k];
-        let mut tables = 0;
+        let d = decide(scores, m, &predictor, fallback);
         for (i, &p) in m.iter().enumerate() {
-            choice[p] = if at(k, i) == table { TABULATED } else { class };
-            tables += usize::from(k < 2 && at(k, i) == table);
+            choice[p] = CLASSES[d.at(d.k, i)];
         }
-        let ratio = |x: f64| (x.is_finite() && noise > 0.0).then(|| (x / noise).sqrt() as f32);
-        regions.push(RegionChoice {
-            points: m.len(),
-            samples: m.iter().map(|&p| scores.n[p] as u64).sum(),
-            ratio: class_sse.map(ratio),
-            resolution: if noise > 0.0 { (sd / noise) as f32 } else { 0.0 },
-            margin: std::array::from_fn(|k| {
-                (class_sse[k].is_finite() && noise > 0.0).then(|| (margin[k] / noise) as f32)
-            }),
-            stand_ins: std::array::from_fn(|k| stand_in[k].iter().filter(|&&x| x).count()),
-            tabulated_points: tables,
-            chosen: class,
-        });
+        regions.push(d.report(m, scores));
     }
+    let summary_material = (!specular.is_empty()).then(|| material.report(&specular, scores));
     let g = maps.tables.grid();
     let (iso_m, aniso_m) = (scores.models[iso], scores.models[aniso]);
     let bytes = [12, 4 * iso_m.n_params(), 4 * aniso_m.n_params(), 2 * g.len() + g.len().div_ceil(8) + 28];
@@ -386,7 +397,102 @@ pub fn select(maps: &PointMaps, cluster: &[u32], clusters: usize, scores: &Score
         summary.ratio[c as usize] = if w > 0 { (s / w as f64) as f32 } else { 0.0 };
     }
     summary.regions = regions;
+    summary.material = summary_material;
     Some(Selection { choice, isotropic: iso_m, anisotropic: aniso_m, summary })
+}
+
+/// The classes in order of complexity, as indices of [`decide`]'s arrays.
+const CLASSES: [u8; 4] = [DIFFUSE, ISOTROPIC, ANISOTROPIC, TABULATED];
+
+/// The class (index into [`CLASSES`]) that class `k` uses at the `i`-th
+/// member, given each simpler class's stand-ins: the table where it stands
+/// in.
+fn class_at(stand_in: &[Vec<bool>; 3], k: usize, i: usize) -> usize {
+    if k < 3 && stand_in[k][i] { 3 } else { k }
+}
+
+/// One set of points' evidence and the class it chose.
+struct Decision {
+    /// Index into [`CLASSES`].
+    k: usize,
+    /// Per class, the sum of its scores over the members (the table's at
+    /// its stand-ins).
+    class_sse: [f64; 4],
+    /// Per class, how far its sum may lie above the best's.
+    margin: [f64; 4],
+    /// Per simpler class, the members where the table stands in.
+    stand_in: [Vec<bool>; 3],
+    /// The noise's sum over the scored samples, and its deviation.
+    noise: f64,
+    sd: f64,
+    /// Whether the class is the material's, the region having no scored
+    /// sample of its own.
+    from_material: bool,
+}
+
+impl Decision {
+    /// The class (index into [`CLASSES`]) that class `k` uses at the
+    /// `i`-th member.
+    fn at(&self, k: usize, i: usize) -> usize {
+        class_at(&self.stand_in, k, i)
+    }
+
+    fn report(&self, m: &[usize], scores: &Scores) -> RegionChoice {
+        let noise = self.noise;
+        let ratio = |x: f64| (x.is_finite() && noise > 0.0).then(|| (x / noise).sqrt() as f32);
+        let margin = |k: usize| (self.class_sse[k].is_finite() && noise > 0.0).then(|| (self.margin[k] / noise) as f32);
+        let stand_ins = |k: usize| self.stand_in[k].iter().filter(|&&x| x).count();
+        RegionChoice {
+            points: m.len(),
+            samples: m.iter().map(|&p| scores.n[p] as u64).sum(),
+            ratio: [ratio(self.class_sse[1]), ratio(self.class_sse[2]), ratio(self.class_sse[3])],
+            resolution: if noise > 0.0 { (self.sd / noise) as f32 } else { 0.0 },
+            margin: [margin(1), margin(2), margin(3)],
+            stand_ins: [stand_ins(1), stand_ins(2)],
+            tabulated_points: if self.k < 3 { stand_ins(self.k) } else { 0 },
+            chosen: CLASSES[self.k],
+            diffuse_ratio: ratio(self.class_sse[0]),
+            diffuse_margin: margin(0),
+            diffuse_stand_ins: stand_ins(0),
+            from_material: self.from_material,
+        }
+    }
+}
+
+/// The class the points `m` choose, each class `k` predicted by
+/// `predictor[k]` of `scores` (the table's standing in where the class
+/// fails as an outlier); `fallback` is the class of a set none of whose
+/// points was scored (the table where there is none).
+fn decide(scores: &Scores, m: &[usize], predictor: &[usize; 4], fallback: Option<usize>) -> Decision {
+    let sum = |f: &dyn Fn(usize) -> f64| m.iter().map(|&p| f(p)).sum::<f64>();
+    let noise = sum(&|p| scores.noise_ss[p]);
+    let sd = (2.0 * sum(&|p| scores.noise_ss2[p])).sqrt();
+    let table = predictor[3];
+    let stand_in: [Vec<bool>; 3] = std::array::from_fn(|k| stand_ins(scores, m, predictor[k], table));
+    let at = |k: usize, i: usize| predictor[class_at(&stand_in, k, i)];
+    let class_sse: [f64; 4] =
+        std::array::from_fn(|k| m.iter().enumerate().map(|(i, &p)| scores.sse(at(k, i), p)).sum());
+    let best = class_sse.iter().copied().filter(|x| x.is_finite()).fold(f64::INFINITY, f64::min);
+    let best_k = class_sse.iter().position(|&x| x == best).unwrap_or(3);
+    let margin: [f64; 4] = std::array::from_fn(|k| {
+        let noise_sd =
+            2.0 * m.iter().enumerate().map(|(i, &p)| scores.pair(p, at(k, i), at(best_k, i))).sum::<f64>().sqrt();
+        let diff = m
+            .iter()
+            .enumerate()
+            .filter(|&(_, &p)| scores.n[p] > 0)
+            .map(|(i, &p)| scores.sse(at(k, i), p) - scores.sse(at(best_k, i), p));
+        NOISE_SIGMAS * noise_sd.max(paired_sd(diff))
+    });
+    let mut d = Decision { k: 3, class_sse, margin, stand_in, noise, sd, from_material: false };
+    // Simplest first; a class unusable at any member is out.
+    d.k = if noise > 0.0 {
+        (0..4).position(|k| d.class_sse[k].is_finite() && d.class_sse[k] <= best + d.margin[k]).unwrap_or(3)
+    } else {
+        d.from_material = fallback.is_some();
+        fallback.unwrap_or(3)
+    };
+    d
 }
 
 /// The standard deviation of a sum of per-point differences, estimated
@@ -483,7 +589,8 @@ mod tests {
     }
 
     /// Scores whose ratios^2 per point are `iso`, `aniso` and `table`
-    /// (sum of squares over the noise's sum).
+    /// (sum of squares over the noise's sum), the diffuse part alone
+    /// missing a lobe by 100 noise variances per sample.
     fn scored(n: usize, iso: f64, aniso: f64, table: f64) -> Scores {
         let k = 200.0;
         Scores {
@@ -491,10 +598,11 @@ mod tests {
             models: vec![AnalyticModel::CookTorrance, AnalyticModel::GgxAniso],
             model_sse: vec![vec![iso * k; n], vec![aniso * k; n]],
             table_sse: vec![table * k; n],
+            diffuse_sse: vec![100.0 * k; n],
             n: vec![200; n],
             noise_ss: vec![k; n],
             noise_ss2: vec![k; n],
-            pair_var: pairs(n, 3, k),
+            pair_var: pairs(n, 4, k),
         }
     }
 
@@ -603,14 +711,78 @@ mod tests {
         assert!((upper_tail(0.0) - 0.5).abs() < 1e-6 && (upper_tail(1.0) - 0.158_655).abs() < 1e-6);
     }
 
+    /// Clear point `p`'s scores: none of its samples was held out.
+    fn unscored(s: &mut Scores, p: usize) {
+        (s.n[p], s.noise_ss[p], s.noise_ss2[p], s.model_sse[0][p], s.model_sse[1][p], s.table_sse[p]) =
+            (0, 0.0, 0.0, 0.0, 0.0, 0.0);
+        s.diffuse_sse[p] = 0.0;
+    }
+
     #[test]
-    fn a_region_without_evidence_keeps_the_table() {
+    fn a_material_without_evidence_keeps_the_table() {
         let mut s = scored(3, 1.0, 1.0, 2.0);
-        for p in 0..3 {
-            (s.n[p], s.noise_ss[p], s.noise_ss2[p], s.model_sse[0][p], s.model_sse[1][p], s.table_sse[p]) =
-                (0, 0.0, 0.0, 0.0, 0.0, 0.0);
-        }
+        (0..3).for_each(|p| unscored(&mut s, p));
         assert_eq!(chosen(&s, 3), TABULATED);
+        let sel = select(&maps(3), &[0; 3], 1, &s).unwrap();
+        assert!(!sel.summary.regions[0].from_material);
+    }
+
+    #[test]
+    fn a_region_without_evidence_takes_the_materials_class() {
+        // Two regions; the second's points were all left out of the
+        // choice's refit. The first's evidence (the isotropic lobe as good
+        // as the table, far beyond the noise better than the diffuse
+        // part) is the material's, and the second takes its class rather
+        // than the most complex one.
+        let n = 10;
+        let mut s = scored(n, 1.0, 1.0, 1.0);
+        (5..n).for_each(|p| unscored(&mut s, p));
+        let cluster = [0, 0, 0, 0, 0, 1, 1, 1, 1, 1];
+        let sel = select(&maps(n), &cluster, 2, &s).unwrap();
+        assert!(sel.choice.iter().all(|&c| c == ISOTROPIC), "{:?}", sel.choice);
+        let r = &sel.summary.regions;
+        assert_eq!((r[0].from_material, r[1].from_material), (false, true));
+        assert_eq!(r[1].samples, 0);
+        assert_eq!(sel.summary.material.as_ref().map(|m| (m.points, m.chosen)), Some((n, ISOTROPIC)));
+        // With a better table in the first region, both take the table.
+        let mut s2 = scored(n, 1.5, 1.5, 1.0);
+        (5..n).for_each(|p| unscored(&mut s2, p));
+        let sel = select(&maps(n), &cluster, 2, &s2).unwrap();
+        assert!(sel.choice.iter().all(|&c| c == TABULATED), "{:?}", sel.choice);
+    }
+
+    #[test]
+    fn a_lobe_the_noise_cannot_see_is_not_modelled() {
+        // 10 points x 200 samples: a lobe whose whole contribution to the
+        // scored samples is 0.02 noise variances per sample (0.6 of the
+        // noise's deviation of the difference) buys nothing: diffuse.
+        let mut s = scored(10, 1.0, 1.0, 1.0);
+        s.diffuse_sse = vec![1.02 * 200.0; 10];
+        assert_eq!(chosen(&s, 10), DIFFUSE);
+        // A lobe worth 0.2 noise variances per sample is 6 deviations:
+        // the simplest class that models it.
+        s.diffuse_sse = vec![1.2 * 200.0; 10];
+        assert_eq!(chosen(&s, 10), ISOTROPIC);
+    }
+
+    #[test]
+    fn glints_in_a_diffuse_region_keep_their_tables() {
+        // 40 matte points, three of them with a glint the diffuse part
+        // misses by 10^3 noise variances per sample.
+        let n = 40;
+        let mut s = scored(n, 1.0, 1.0, 1.0);
+        s.diffuse_sse = vec![1.0 * 200.0; n];
+        for p in [5, 20, 33] {
+            s.diffuse_sse[p] = 1e3 * 200.0;
+        }
+        let sel = select(&maps(n), &vec![0; n], 1, &s).unwrap();
+        for p in 0..n {
+            let expected = if [5, 20, 33].contains(&p) { TABULATED } else { DIFFUSE };
+            assert_eq!(sel.choice[p], expected, "point {p}");
+        }
+        let r = &sel.summary.regions[0];
+        assert_eq!((r.diffuse_stand_ins, r.tabulated_points), (3, 3));
+        assert!((r.diffuse_ratio.unwrap() - 1.0).abs() < 1e-6, "{r:?}");
     }
 
     #[test]
@@ -651,7 +823,7 @@ mod tests {
         let mut s = scored(n, 1.3, 1.2, 1.0);
         s.models.extend([AnalyticModel::WardIso, AnalyticModel::WardAniso]);
         s.model_sse.extend([vec![0.5 * 200.0; n], vec![0.5 * 200.0; n]]);
-        s.pair_var = pairs(n, 5, 200.0);
+        s.pair_var = pairs(n, 6, 200.0);
         let sel = select(&maps(n), &vec![0; n], 1, &s).unwrap();
         assert_eq!((sel.isotropic, sel.anisotropic), (AnalyticModel::CookTorrance, AnalyticModel::GgxAniso));
         assert_eq!(sel.choice[0], TABULATED);
