@@ -12,6 +12,8 @@
 //! found necessary for the rotation angle) on the samples of up to
 //! [`POINTS_PER_CLUSTER`] member points, with the amplitudes projected out
 //! at every evaluation (variable projection, Golub and Pereyra 1973).
+//! An anisotropic lobe's orientation is then the point's own where the
+//! point's samples say so beyond the noise ([`turned_amplitudes`]).
 //!
 //! **Objective.** The cosine-weighted L2 error of Ngan et al. (2005),
 //! `sum ((f_model - rho) cos(theta_i))^2`, on the luminance.
@@ -315,34 +317,51 @@ fn turned_amplitudes(model: AnalyticModel, shape: &[f32], samples: &[Sample], o:
     if samples.is_empty() || shape.len() <= a {
         return base;
     }
-    let score = |r: Option<f32>| r.filter(|r| r.is_finite()).unwrap_or(f32::INFINITY);
-    let mut best = (0.0f32, base.clone());
-    let search = |centre: f32, (span, step): (f32, f32), best: &mut (f32, (Vec<f32>, Option<f32>))| {
+    // The search scores each turn on the shape fit's share of the samples
+    // with linear amplitudes (as the shape fit does); only the turn it
+    // finds is fitted on them all and tested against the noise.
+    let sub = stride_sample(samples, SAMPLES_PER_POINT);
+    let sse = |turn: f32| {
+        let mut turned = shape.to_vec();
+        turned[a] += turn;
+        turn_sse(model, &turned, &sub, o)
+    };
+    let search = |best: &mut (f32, f64), (span, step): (f32, f32)| {
+        let centre = best.0;
         let n = (span / step).round() as i32;
-        for j in -n..=n {
+        for j in (-n..=n).filter(|&j| j != 0) {
             let turn = centre + (j as f32 * step).to_radians();
-            if turn == best.0 {
-                continue;
-            }
-            let mut turned = shape.to_vec();
-            turned[a] += turn;
-            let fit = point_amplitudes(model, &turned, samples, o);
-            if score(fit.1) < score(best.1.1) {
-                *best = (turn, fit);
+            let e = sse(turn);
+            if e < best.1 {
+                *best = (turn, e);
             }
         }
     };
-    search(0.0, TURN_COARSE_DEG, &mut best);
-    let centre = best.0;
-    search(centre, TURN_FINE_DEG, &mut best);
-    let (turn, turned) = best;
-    if turn == 0.0 {
-        base
-    } else if turn_beyond_noise(model, &base.0, &turned.0, samples, o) {
-        turned
-    } else {
-        base
+    let mut best = (0.0f32, sse(0.0));
+    search(&mut best, TURN_COARSE_DEG);
+    search(&mut best, TURN_FINE_DEG);
+    if best.0 == 0.0 {
+        return base;
     }
+    let mut turned = shape.to_vec();
+    turned[a] += best.0;
+    let fit = point_amplitudes(model, &turned, samples, o);
+    if turn_beyond_noise(model, &base.0, &fit.0, samples, o) { fit } else { base }
+}
+
+/// The shape fit's objective at one point ([`ShapeProblem`]'s linear
+/// amplitudes): the sum of squared cosine-weighted luminance residuals.
+fn turn_sse(model: AnalyticModel, shape: &[f32], samples: &[Sample], o: Vec3) -> f64 {
+    let mut p = vec![0.0f32, 0.0, 0.0, 1.0, 1.0, 1.0];
+    p.extend_from_slice(shape);
+    let Some(m) = model.build(&p) else { return f64::INFINITY };
+    let bs: Vec<f32> = samples.iter().map(|x| m.eval(x.i, o).x).collect();
+    let bd = vec![std::f32::consts::FRAC_1_PI; samples.len()];
+    let (kd, ks) = solve_amplitudes(&bd, &bs, samples, max_ks(model, shape));
+    let (kd, ks) = (lum(kd), lum(ks));
+    let e: f64 =
+        samples.iter().zip(&bs).map(|(x, &b)| (((kd * bd[0] + ks * b - lum(x.rho)) * x.i.z) as f64).powi(2)).sum();
+    if e.is_finite() { e } else { f64::INFINITY }
 }
 
 /// Whether the point's own turn (`turned`) fits its samples better than
