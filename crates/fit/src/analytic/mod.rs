@@ -296,9 +296,13 @@ fn angle_index(model: AnalyticModel) -> Option<usize> {
 
 /// Turns of the lobe tried at each point, degrees from the cluster's: a
 /// coarse pass over [`TURN_COARSE_DEG`] in its steps, then a fine one
-/// around the best.
-const TURN_COARSE_DEG: (f32, f32) = (20.0, 2.5);
-const TURN_FINE_DEG: (f32, f32) = (2.0, 0.5);
+/// around the best, covering the coarse step; each scored on
+/// [`TURN_SAMPLES`] of the point's samples. 19 trials of 64 samples per
+/// point and anisotropic model: balanced satin's analytic stage took 11.7 s
+/// against 6 without turns with 25 trials of 96.
+const TURN_COARSE_DEG: (f32, f32) = (20.0, 5.0);
+const TURN_FINE_DEG: (f32, f32) = (2.5, 0.5);
+const TURN_SAMPLES: usize = 64;
 
 /// [`point_amplitudes`] with the lobe turned to the point: an anisotropic
 /// lobe shares its cluster's roughnesses and Fresnel index, but its
@@ -320,7 +324,7 @@ fn turned_amplitudes(model: AnalyticModel, shape: &[f32], samples: &[Sample], o:
     // The search scores each turn on the shape fit's share of the samples
     // with linear amplitudes (as the shape fit does); only the turn it
     // finds is fitted on them all and tested against the noise.
-    let sub = stride_sample(samples, SAMPLES_PER_POINT);
+    let sub = stride_sample(samples, TURN_SAMPLES);
     let sse = |turn: f32| {
         let mut turned = shape.to_vec();
         turned[a] += turn;
