@@ -145,8 +145,9 @@ fn print_choice(e: &fit::select::SelectionSummary) {
         ScoredOn::HeldOutSteps => "gantry steps held out of a second fit",
         ScoredOn::FitSamples => "the fit's own samples (too few steps to hold any out; favours the table)",
     };
+    let min = fit::select::MIN_SCORED_POINTS;
     println!(
-        "  why: per region, RMS residual / noise RMS on {on}; the diffuse class is the point's diffuse albedo alone; a simpler class's score counts the table at the points where it fails as an outlier (stand-ins); the simplest class whose ratio^2 is within its margin of the best's is chosen (margins: 2 deviations of the difference, the noise's or the points' spread, whichever is larger); \"tables\" counts the points of a region that chose a simpler class kept on their tables; a region none of whose points was scored takes the material's class (\"material\" below, marked *)"
+        "  why: per region, RMS residual / noise RMS on {on}; the diffuse class is the point's diffuse albedo alone; a simpler class's score counts the table at the points where it fails as an outlier (stand-ins); the simplest class whose ratio^2 is within its margin of the best's is chosen (margins: 2 deviations of the difference, the noise's or the points' spread, whichever is larger); \"tables\" counts the points of a region that chose a simpler class kept on their tables; a region with fewer than {min} scored points takes the material's class (\"material\" below, marked *)"
     );
     let (iso, aniso) = (e.isotropic_model.as_str(), e.anisotropic_model.as_str());
     println!(

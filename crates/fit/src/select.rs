@@ -134,8 +134,9 @@ pub struct Scores {
     pub noise_ss: Vec<f64>,
     pub noise_ss2: Vec<f64>,
     /// Per point, per pair of predictors `(a, b)` (the models in order,
-    /// then the table, then the diffuse model): `sum_j (r_aj - r_bj)^2 s_j^2`, the residuals'
-    /// difference squared times the sample's noise variance, all
+    /// then the table, then the diffuse model):
+    /// `sum_j (r_aj - r_bj)^2 s_j^2`, the residuals' difference squared
+    /// times the sample's noise variance, all
     /// cosine-weighted: a quarter of the noise's variance of the
     /// difference of the two scores. With `r = (f - y) cos` and `y` noisy
     /// with variance `s^2`, `r_a^2 - r_b^2 = (r_a - r_b)(r_a + r_b)`, whose
@@ -288,7 +289,8 @@ pub struct RegionChoice {
     pub diffuse_margin: Option<f32>,
     #[serde(default)]
     pub diffuse_stand_ins: usize,
-    /// No point of the region was scored: it took the material's class.
+    /// Fewer than [`MIN_SCORED_POINTS`] of the region's points were
+    /// scored: it took the material's class.
     #[serde(default)]
     pub from_material: bool,
 }
@@ -308,7 +310,7 @@ pub struct SelectionSummary {
     #[serde(default)]
     pub regions: Vec<RegionChoice>,
     /// The whole material's evidence taken as one region: the class of a
-    /// region none of whose points was scored.
+    /// region with fewer than [`MIN_SCORED_POINTS`] scored points.
     #[serde(default)]
     pub material: Option<RegionChoice>,
     /// Bytes per point of each representation.
@@ -338,8 +340,8 @@ pub fn is_candidate(m: AnalyticModel) -> bool {
 }
 
 /// Choose per cluster (`cluster[p]`, `u32::MAX` or `>= clusters` for
-/// points outside every cluster) from `scores`, a cluster without scored
-/// points taking the material's class; `None` if neither an isotropic nor
+/// points outside every cluster) from `scores`, a cluster with fewer than
+/// [`MIN_SCORED_POINTS`] scored points taking the material's class; `None` if neither an isotropic nor
 /// an anisotropic analytic model was scored.
 pub fn select(maps: &PointMaps, cluster: &[u32], clusters: usize, scores: &Scores) -> Option<Selection> {
     let n = maps.len();
@@ -364,8 +366,8 @@ pub fn select(maps: &PointMaps, cluster: &[u32], clusters: usize, scores: &Score
         members[cluster[p] as usize].push(p);
     }
     let predictor = [scores.diffuse(), iso, aniso, scores.table()];
-    // The whole material as one region: the choice of a region none of
-    // whose points was scored.
+    // The whole material as one region: the choice of a region with too
+    // few scored points.
     let material = decide(scores, &specular, &predictor, None);
     let fallback = (material.noise > 0.0).then_some(material.k);
     let mut choice = vec![DIFFUSE; n];
@@ -435,8 +437,8 @@ struct Decision {
     /// The noise's sum over the scored samples, and its deviation.
     noise: f64,
     sd: f64,
-    /// Whether the class is the material's, the region having no scored
-    /// sample of its own.
+    /// Whether the class is the material's, the region having too few
+    /// scored points of its own.
     from_material: bool,
 }
 
@@ -471,8 +473,8 @@ impl Decision {
 
 /// The class the points `m` choose, each class `k` predicted by
 /// `predictor[k]` of `scores` (the table's standing in where the class
-/// fails as an outlier); `fallback` is the class of a set none of whose
-/// points was scored (the table where there is none).
+/// fails as an outlier); `fallback` is the class of a set with fewer than
+/// [`MIN_SCORED_POINTS`] scored points (the table where there is none).
 fn decide(scores: &Scores, m: &[usize], predictor: &[usize; 4], fallback: Option<usize>) -> Decision {
     let sum = |f: &dyn Fn(usize) -> f64| m.iter().map(|&p| f(p)).sum::<f64>();
     let noise = sum(&|p| scores.noise_ss[p]);
