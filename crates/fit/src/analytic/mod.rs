@@ -297,9 +297,11 @@ fn angle_index(model: AnalyticModel) -> Option<usize> {
 /// Turns of the lobe tried at each point, degrees from the cluster's: a
 /// coarse pass over [`TURN_COARSE_DEG`] in its steps, then a fine one
 /// around the best, covering the coarse step; each scored on
-/// [`TURN_SAMPLES`] of the point's samples. 19 trials of 64 samples per
-/// point and anisotropic model: balanced satin's analytic stage took 11.7 s
-/// against 6 without turns with 25 trials of 96.
+/// [`TURN_SAMPLES`] of the point's samples: 19 trials of 64 per point and
+/// anisotropic model (574b0e9's 25 trials of 96 took balanced satin's
+/// analytic stage to 11.7 s, against 5.6-6.8 s without turns; these take
+/// it to 7.7-8.1 s; `capture --quality balanced --sample satin`,
+/// `report.json`'s `timings`).
 const TURN_COARSE_DEG: (f32, f32) = (20.0, 5.0);
 const TURN_FINE_DEG: (f32, f32) = (2.5, 0.5);
 const TURN_SAMPLES: usize = 64;
