@@ -361,13 +361,24 @@ fn turn_sse(model: AnalyticModel, shape: &[f32], samples: &[Sample], o: Vec3) ->
     let mut p = vec![0.0f32, 0.0, 0.0, 1.0, 1.0, 1.0];
     p.extend_from_slice(shape);
     let Some(m) = model.build(&p) else { return f64::INFINITY };
-    let bs: Vec<f32> = samples.iter().map(|x| m.eval(x.i, o).x).collect();
-    let bd = vec![std::f32::consts::FRAC_1_PI; samples.len()];
-    let (kd, ks) = solve_amplitudes(&bd, &bs, samples, max_ks(model, shape));
-    let (kd, ks) = (lum(kd), lum(ks));
-    let e: f64 =
-        samples.iter().zip(&bs).map(|(x, &b)| (((kd * bd[0] + ks * b - lum(x.rho)) * x.i.z) as f64).powi(2)).sum();
+    let mut r = Vec::with_capacity(samples.len());
+    linear_residuals(m.as_ref(), samples, o, max_ks(model, shape), &mut r);
+    let e: f64 = r.iter().map(|x| x * x).sum();
     if e.is_finite() { e } else { f64::INFINITY }
+}
+
+/// One point's cosine-weighted luminance residuals for the lobe `lm` (built
+/// with unit specular amplitude and no diffuse) with the amplitudes solved
+/// in closed form, `ks` at most `bound`: the shape fit's residuals for the
+/// models linear in their amplitudes.
+fn linear_residuals(lm: &dyn brdf::Brdf, samples: &[Sample], o: Vec3, bound: f64, r: &mut Vec<f64>) {
+    let bs: Vec<f32> = samples.iter().map(|x| lm.eval(x.i, o).x).collect();
+    let bd = vec![std::f32::consts::FRAC_1_PI; samples.len()];
+    let (kd, ks) = solve_amplitudes(&bd, &bs, samples, bound);
+    let (kd, ks) = (lum(kd), lum(ks));
+    for (j, x) in samples.iter().enumerate() {
+        r.push(((kd * bd[j] + ks * bs[j] - lum(x.rho)) * x.i.z) as f64);
+    }
 }
 
 /// Whether the point's own turn (`turned`) fits its samples better than
@@ -418,13 +429,7 @@ impl ShapeProblem<'_> {
                     None => r.extend(samples.iter().map(|_| 1.0)),
                 }
             } else if let Some(lm) = &linear {
-                let bs: Vec<f32> = samples.iter().map(|x| lm.eval(x.i, o).x).collect();
-                let bd = vec![std::f32::consts::FRAC_1_PI; samples.len()];
-                let (kd, ks) = solve_amplitudes(&bd, &bs, samples, bound);
-                let (kd, ks) = (lum(kd), lum(ks));
-                for (j, x) in samples.iter().enumerate() {
-                    r.push(((kd * bd[j] + ks * bs[j] - lum(x.rho)) * x.i.z) as f64);
-                }
+                linear_residuals(lm.as_ref(), samples, o, bound, &mut r);
             } else {
                 r.extend(samples.iter().map(|_| 1.0));
             }
