@@ -91,8 +91,9 @@ pub mod point_flag {
 
 /// Index of refraction used when it cannot be fitted (typical dielectrics).
 pub const DEFAULT_ETA: f32 = 1.5;
-/// Range of every fitted Fresnel index (the tables' and the analytic
-/// lobes'). Below: the lowest refractive indices of common solids are
+/// Range of the tables' fitted Fresnel index, and the lower bound of the
+/// analytic lobes' (whose upper bound is a metal's reflectance,
+/// [`brdf::params::MAX_ETA`]). Below: the lowest refractive indices of common solids are
 /// about 1.3 (water ice 1.31, PTFE 1.35, magnesium fluoride 1.38), and the
 /// relative Fresnel term `F(theta) / F(0)` grows without bound as the
 /// index nears 1 (at 1.05, 1,700 times at grazing), so an index the rig's
@@ -100,7 +101,8 @@ pub const DEFAULT_ETA: f32 = 1.5;
 /// at the old bound of 1.05 (`refl inspect` of a fast capture before it
 /// moved).
 /// Above 30 the term is flat to within 1% at the rig's angles, as a
-/// metal's nearly is.
+/// metal's nearly is: a table, whose amplitude is free, gains nothing
+/// from a higher index.
 pub const ETA_RANGE: (f32, f32) = (1.3, 30.0);
 
 /// One usable sample of a point.

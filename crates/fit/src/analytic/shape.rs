@@ -2,7 +2,7 @@
 //! and starting values from the NDF's slope moments.
 
 use brdf::ndf::NdfTable;
-use brdf::params::AnalyticModel;
+use brdf::params::{AnalyticModel, MAX_ETA};
 
 use crate::partial::ETA_RANGE;
 
@@ -85,10 +85,12 @@ pub fn init(model: AnalyticModel, m: &Moments, eta: f32) -> Vec<f64> {
 }
 
 /// Physical shape parameters (the model's layout after kd and ks) from `u`.
-/// A Fresnel index is `ETA_RANGE.0 + exp(u)`, held below `ETA_RANGE.1`.
+/// A Fresnel index is `ETA_RANGE.0 + exp(u)`, held below
+/// [`brdf::params::MAX_ETA`]: a metal's reflectance, not the tables' upper
+/// bound (`ETA_RANGE.1`), which only the shape of `F(theta) / F(0)` sets.
 pub fn shape(model: AnalyticModel, u: &[f64]) -> Vec<f32> {
     let e = |x: f64| x.clamp(-20.0, 20.0).exp() as f32;
-    let eta = |x: f64| (ETA_RANGE.0 + e(x)).min(ETA_RANGE.1);
+    let eta = |x: f64| (ETA_RANGE.0 + e(x)).min(MAX_ETA);
     match model {
         AnalyticModel::Phong => vec![e(u[0])],
         AnalyticModel::WardIso => vec![e(u[0])],
