@@ -4,14 +4,18 @@
 # which stage or which frames a figure comes from.
 #
 #   bash scripts/refit-variant.sh [--bin DIR] [--data DIR]
-#                                 [--drop-shorter] [--no-pooling] [--turn-members] CAPTURE OUT
+#                                 [--drop-shorter] [--no-pooling] [--turn-members]
+#                                 [--ndf-theta N] [--kernel-scale X] CAPTURE OUT
 #
 # --drop-shorter leaves out the frames of an HDR bracket's shorter
 # exposures (a partial fit: the capture as if it had one exposure);
 # --no-pooling fits every point's NDF from its own samples (the capture's
 # settings without `pool`); --turn-members pools with each member turned to
 # its cluster's lobe axis (`fit::pooled::PoolSettings::turn`, off in the
-# presets). The frames are linked, not copied; CAPTURE is
+# presets); --ndf-theta N fits tables of N rings by 3N sectors (as
+# `capture --ndf-theta`); --kernel-scale X sets the splat kernel's width
+# as a fraction of the local half-vector spacing
+# (`FitSettings::kernel_scale`, 0.5 in the presets). The frames are linked, not copied; CAPTURE is
 # not changed. --data names the data directory holding the capture's
 # calibrations (default: CAPTURE's parent's `data`, where eval-all.sh puts
 # it). OUT/eval.json is the score, OUT.log the log.
@@ -22,6 +26,8 @@ data=""
 drop_shorter=0
 no_pooling=0
 turn_members=0
+ndf_theta=""
+kernel_scale=""
 while [ $# -gt 0 ]; do
   case "$1" in
     --bin) bin="$2"; shift 2 ;;
@@ -29,10 +35,12 @@ while [ $# -gt 0 ]; do
     --drop-shorter) drop_shorter=1; shift ;;
     --no-pooling) no_pooling=1; shift ;;
     --turn-members) turn_members=1; shift ;;
+    --ndf-theta) ndf_theta="$2"; shift 2 ;;
+    --kernel-scale) kernel_scale="$2"; shift 2 ;;
     *) break ;;
   esac
 done
-[ $# -eq 2 ] || { sed -n 2,16p "$0" >&2; exit 2; }
+[ $# -eq 2 ] || { sed -n 2,21p "$0" >&2; exit 2; }
 src="$(cd "$1" && pwd)"
 . scripts/common.sh
 release_bins
@@ -41,11 +49,16 @@ rm -rf "$out"
 out="$(absolute_dir "$out")"
 export REFLECTOMETER_DATA="${data:-$(dirname "$src")/data}"
 ln -s "$src/frames" "$out/frames"
-python3 - "$src" "$out" "$drop_shorter" "$no_pooling" "$turn_members" <<'PY'
+python3 - "$src" "$out" "$drop_shorter" "$no_pooling" "$turn_members" "$ndf_theta" "$kernel_scale" <<'PY'
 import json, sys
 src, out = sys.argv[1], sys.argv[2]
 drop_shorter, no_pooling, turn_members = (a == "1" for a in sys.argv[3:6])
+ndf_theta, kernel_scale = sys.argv[6], sys.argv[7]
 info = json.load(open(f"{src}/capture.json"))
+if ndf_theta:
+    info["settings"]["fit"]["grid"] = {"n_theta": int(ndf_theta), "n_phi": 3 * int(ndf_theta)}
+if kernel_scale:
+    info["settings"]["fit"]["kernel_scale"] = float(kernel_scale)
 if no_pooling:
     info["settings"]["pool"] = None
 if turn_members and info["settings"].get("pool"):
