@@ -93,10 +93,10 @@ pub mod point_flag {
 pub const DEFAULT_ETA: f32 = 1.5;
 /// Range of the tables' fitted Fresnel index, and the lower bound of the
 /// analytic lobes' (whose upper bound is a metal's reflectance,
-/// [`brdf::params::MAX_ETA`]). Below: the lowest refractive indices of common solids are
-/// about 1.3 (water ice 1.31, PTFE 1.35, magnesium fluoride 1.38), and the
-/// relative Fresnel term `F(theta) / F(0)` grows without bound as the
-/// index nears 1 (at 1.05, 1,700 times at grazing), so an index the rig's
+/// [`brdf::params::MAX_ETA`]). Below: the lowest refractive indices of
+/// common solids are about 1.3 (water ice 1.31, PTFE 1.35, magnesium
+/// fluoride 1.38), and the relative Fresnel term `F(theta) / F(0)` grows
+/// without bound as the index nears 1 (at 1.05, 1,700 times at grazing), so an index the rig's
 /// angles cannot pin down must not drift there: brushed metal's tables sat
 /// at the old bound of 1.05 (`refl inspect` of a fast capture before it
 /// moved).

@@ -170,7 +170,8 @@ pub const MAX_KS: f64 = 1.0;
 /// they receive at a 60 degree view (`brdf`'s energy tests show it), and at
 /// a grazing view a sharp lobe approaches `ks / F(0)`. They conserve energy
 /// at every view for `ks <= F(0)`: the reflectance of a smooth interface of
-/// their index (0.04 at 1.5, 0.87 at 30, a metal's range).
+/// their index (0.04 at 1.5, 0.87 at 30, 0.98 at
+/// [`brdf::params::MAX_ETA`], a metal's range).
 ///
 /// Lafortune's lobe is not normalised: its amplitude `rho` multiplies
 /// `(c(i) . o)^n` with `c(i) = (Cx ix, Cy iy, iz)`, whose length is at most
@@ -178,9 +179,10 @@ pub const MAX_KS: f64 = 1.0;
 /// at most `rho` times the integral of `cos^n` over a hemisphere,
 /// `2 pi / (n + 1)`, so `rho <= (n + 1) / (2 pi)` conserves energy at every
 /// view. Unbounded, a lobe narrower than the lights' spacing took whatever
-/// amplitude its tails asked for: on a balanced capture of `ilm_solo_m_68`
-/// one fit's peak, at views the rig never sees, rendered 10^13 times too
-/// bright.
+/// amplitude its tails asked for, and blazed at views the rig never sees:
+/// `refl eval` gave Lafortune a render error of 5.9e13 on a balanced
+/// capture of `ilm_solo_m_68` (`scripts/eval-all.sh --quality balanced`
+/// before this bound; 1.08 with it).
 fn max_ks(model: AnalyticModel, shape: &[f32]) -> f64 {
     match model {
         AnalyticModel::Lafortune => {
