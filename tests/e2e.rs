@@ -102,9 +102,9 @@ fn capture_fits_renders_and_every_refl_tool_reads_it() {
     let mut brdf = lab
         .cmd(REFL)
         .args(["brdf", s(&dir), "--point", "6,6"])
-        .stdin(std::process::Stdio::piped())
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::piped())
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
         .spawn()
         .unwrap();
     use std::io::Write as _;
@@ -121,6 +121,21 @@ fn capture_fits_renders_and_every_refl_tool_reads_it() {
     assert!(v[1] > v[4], "specular {} against off-specular {}", v[1], v[4]);
     let o = lab.refl(&["brdf", s(&dir), "--point", "12,0"]);
     assert_eq!(o.status.code(), Some(2), "a point off the 12 x 12 grid: {}", stderr(&o));
+    // A reader that has gone before the report is written (`refl inspect
+    // DIR | head`) ends the command as it ends `cat`: by SIGPIPE, quietly,
+    // not with a panic and its backtrace.
+    let mut inspect =
+        lab.cmd(REFL).args(["inspect", s(&dir)]).stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().unwrap();
+    drop(inspect.stdout.take());
+    let o = inspect.wait_with_output().unwrap();
+    use std::os::unix::process::ExitStatusExt as _;
+    assert!(
+        o.status.success() || o.status.signal() == Some(libc::SIGPIPE),
+        "refl inspect into a closed pipe: {:?}, {}",
+        o.status,
+        stderr(&o)
+    );
+    assert!(!stderr(&o).contains("panicked"), "{}", stderr(&o));
 }
 
 /// A simulated rig like the default one, but whose LEDs do not drift: the

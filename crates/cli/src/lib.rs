@@ -102,6 +102,20 @@ pub fn usage(e: anyhow::Error) -> anyhow::Error {
     anyhow::Error::new(Usage(format!("{e:#}")))
 }
 
+/// Let a reader that stops early end the process quietly, as it ends `cat`
+/// or `grep`: `refl inspect DIR | head` is killed by SIGPIPE when `head`
+/// has gone. Rust's runtime ignores SIGPIPE, so that a write to a closed
+/// pipe or socket fails instead, and `println!` panics on that failure,
+/// backtrace and all. Only for commands whose one pipe is their standard
+/// output: the daemon, the emulated microcontroller and the rig benchmarks
+/// must see a closed peer as an error they handle, and never die of it.
+pub fn quiet_on_closed_stdout() {
+    // SAFETY: restoring a signal's default action has no preconditions.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
+}
+
 /// The process's one watcher of stop signals (SIGINT, SIGTERM, SIGHUP),
 /// shared by the capture, the fit, the renders and the daemon: the
 /// returned receiver turns true at the first signal and every stage polls

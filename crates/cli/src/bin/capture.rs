@@ -112,6 +112,7 @@ fn main() -> ExitCode {
     let args = Args::parse();
     cli::init_logging(args.log_format);
     if args.list_samples {
+        cli::quiet_on_closed_stdout();
         for (n, d) in sim::materials::BUILTIN {
             println!("{n:14} {d}");
         }

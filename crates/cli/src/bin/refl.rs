@@ -319,6 +319,16 @@ fn main() -> ExitCode {
     let args = Args::parse();
     let args_log_format = args.log_format;
     cli::init_logging(args_log_format);
+    let talks_to_peers = matches!(
+        args.cmd,
+        Cmd::Daemon { .. }
+            | Cmd::SimMcu { .. }
+            | Cmd::Tradeoff { .. }
+            | Cmd::Bench { which: BenchCmd::Realtime { .. } | BenchCmd::Protocol { .. } }
+    );
+    if !talks_to_peers {
+        cli::quiet_on_closed_stdout();
+    }
     let rt = match tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build() {
         Ok(rt) => rt,
         Err(e) => {
