@@ -15,10 +15,11 @@
 # presets); --ndf-theta N fits tables of N rings by 3N sectors (as
 # `capture --ndf-theta`); --kernel-scale X sets the splat kernel's width
 # as a fraction of the local half-vector spacing
-# (`FitSettings::kernel_scale`, 0.5 in the presets). The frames are linked, not copied; CAPTURE is
-# not changed. --data names the data directory holding the capture's
-# calibrations (default: CAPTURE's parent's `data`, where eval-all.sh puts
-# it). OUT/eval.json is the score, OUT.log the log.
+# (`FitSettings::kernel_scale`, 0.5 in the presets). The frames are
+# linked, not copied; CAPTURE is not changed. --data names the data
+# directory holding the capture's calibrations (default: CAPTURE's
+# parent's `data`, where eval-all.sh puts it). OUT/eval.json is the score,
+# OUT.log the log.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bin=""
@@ -40,7 +41,7 @@ while [ $# -gt 0 ]; do
     *) break ;;
   esac
 done
-[ $# -eq 2 ] || { sed -n 2,21p "$0" >&2; exit 2; }
+[ $# -eq 2 ] || { sed -n 2,22p "$0" >&2; exit 2; }
 src="$(cd "$1" && pwd)"
 . scripts/common.sh
 release_bins
