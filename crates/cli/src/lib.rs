@@ -106,9 +106,11 @@ pub fn usage(e: anyhow::Error) -> anyhow::Error {
 /// or `grep`: `refl inspect DIR | head` is killed by SIGPIPE when `head`
 /// has gone. Rust's runtime ignores SIGPIPE, so that a write to a closed
 /// pipe or socket fails instead, and `println!` panics on that failure,
-/// backtrace and all. Only for commands whose one pipe is their standard
-/// output: the daemon, the emulated microcontroller and the rig benchmarks
-/// must see a closed peer as an error they handle, and never die of it.
+/// backtrace and all. Only for commands whose work is what they print
+/// (reports, listings, figure benchmarks): the daemon, the emulated
+/// microcontroller and the rig benchmarks must see a closed peer as an
+/// error they handle, and a fit or a trade-off sweep must not be killed
+/// mid-way by a log line to a stderr whose reader has gone.
 pub fn quiet_on_closed_stdout() {
     // SAFETY: restoring a signal's default action has no preconditions.
     unsafe {

@@ -319,14 +319,15 @@ fn main() -> ExitCode {
     let args = Args::parse();
     let args_log_format = args.log_format;
     cli::init_logging(args_log_format);
-    let talks_to_peers = matches!(
-        args.cmd,
-        Cmd::Daemon { .. }
-            | Cmd::SimMcu { .. }
-            | Cmd::Tradeoff { .. }
-            | Cmd::Bench { which: BenchCmd::Realtime { .. } | BenchCmd::Protocol { .. } }
-    );
-    if !talks_to_peers {
+    // The commands whose work is what they print (see
+    // `cli::quiet_on_closed_stdout`); not the rig benchmarks, which talk to
+    // an emulated microcontroller.
+    let prints_a_report = match &args.cmd {
+        Cmd::Inspect { .. } | Cmd::Brdf { .. } => true,
+        Cmd::Bench { which } => !matches!(which, BenchCmd::Realtime { .. } | BenchCmd::Protocol { .. }),
+        _ => false,
+    };
+    if prints_a_report {
         cli::quiet_on_closed_stdout();
     }
     let rt = match tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build() {
