@@ -600,6 +600,25 @@ mod tests {
         assert!((fit.params[6] - lobe[0]).abs() > 0.01, "{:?}", &fit.params[..k]);
     }
 
+    /// The rig's view, 45 degrees from the normal.
+    fn view_45() -> Vec3 {
+        Vec3::new(-(45f32.to_radians().sin()), 0.0, 45f32.to_radians().cos())
+    }
+
+    /// Noise-free samples of `b` seen from `o`, lit from a square of
+    /// `2 half + 1` by `2 half + 1` directions `step` apart around the
+    /// mirror direction.
+    fn lit_around_mirror(b: &dyn brdf::Brdf, o: Vec3, half: i32, step: f32) -> Vec<Sample> {
+        let mut v = Vec::new();
+        for a in -half..=half {
+            for e in -half..=half {
+                let i = Vec3::new(-o.x + a as f32 * step, e as f32 * step, o.z).normalize();
+                v.push(Sample { i, rho: b.eval(i, o).to_array(), var: 1e-8, channel_var: [1e-8; 3], kernel_rad: 0.01 });
+            }
+        }
+        v
+    }
+
     #[test]
     fn each_point_turns_its_clusters_lobe_to_its_own() {
         // A narrow Beckmann lobe (brushed metal's roughnesses) seen from
@@ -607,20 +626,13 @@ mod tests {
         // the mirror direction; the point's lobe is turned 8.5 degrees
         // from its cluster's.
         let model = AnalyticModel::BeckmannAniso;
-        let o = Vec3::new(-(45f32.to_radians().sin()), 0.0, 45f32.to_radians().cos());
+        let o = view_45();
         let cluster = [0.25f32, 0.05, 0.3, 1.8];
         let mut truth = vec![0.02, 0.02, 0.02, 0.05, 0.05, 0.05];
         truth.extend_from_slice(&cluster);
         truth[8] += 8.5f32.to_radians();
         let b = model.build(&truth).unwrap();
-        let mut samples = Vec::new();
-        for a in -10..=10 {
-            for e in -10..=10 {
-                let i = Vec3::new(-o.x + a as f32 * 0.03, e as f32 * 0.03, o.z).normalize();
-                let rho = b.eval(i, o).to_array();
-                samples.push(Sample { i, rho, var: 1e-8, channel_var: [1e-8; 3], kernel_rad: 0.01 });
-            }
-        }
+        let samples = lit_around_mirror(b.as_ref(), o, 10, 0.03);
         let (_, shared) = point_amplitudes(model, &cluster, &samples, o);
         let (params, turned) = turned_amplitudes(model, &cluster, &samples, o);
         let turn = (params[8] - cluster[2]).to_degrees();
@@ -660,7 +672,7 @@ mod tests {
         // degrees across them (as a cluster of its points does), fitted
         // from the cluster's true shape at its mean orientation.
         let model = AnalyticModel::BeckmannAniso;
-        let o = Vec3::new(-(45f32.to_radians().sin()), 0.0, 45f32.to_radians().cos());
+        let o = view_45();
         let n = 12;
         let turn = |p: usize| (-10.0 + 20.0 * p as f32 / (n - 1) as f32).to_radians();
         let shape = [0.25f32, 0.05, 0.3, 1.8];
@@ -669,21 +681,7 @@ mod tests {
                 let mut q = vec![0.02, 0.02, 0.02, 0.05, 0.05, 0.05];
                 q.extend_from_slice(&shape);
                 q[8] += turn(p);
-                let b = model.build(&q).unwrap();
-                let mut v = Vec::new();
-                for a in -8..=8 {
-                    for e in -8..=8 {
-                        let i = Vec3::new(-o.x + a as f32 * 0.04, e as f32 * 0.04, o.z).normalize();
-                        v.push(Sample {
-                            i,
-                            rho: b.eval(i, o).to_array(),
-                            var: 1e-8,
-                            channel_var: [1e-8; 3],
-                            kernel_rad: 0.01,
-                        });
-                    }
-                }
-                v
+                lit_around_mirror(model.build(&q).unwrap().as_ref(), o, 8, 0.04)
             })
             .collect();
         let ev = Evidence { cluster: vec![0; n], clusters: 1, samples, view: vec![o; n] };
@@ -717,7 +715,7 @@ mod tests {
         // admit the metal's reflectance: with the index held at 30 it
         // stopped at 0.875 and the diffuse part grew to make up the rest.
         let model = AnalyticModel::BeckmannAniso;
-        let o = Vec3::new(-(45f32.to_radians().sin()), 0.0, 45f32.to_radians().cos());
+        let o = view_45();
         let truth = brdf::model::Microfacet {
             kd: Vec3::splat(0.01),
             ks: Vec3::ONE,
@@ -727,14 +725,7 @@ mod tests {
                 k: Vec3::new(9.2, 6.3, 4.8),
             },
         };
-        let mut samples = Vec::new();
-        for a in -10..=10 {
-            for e in -10..=10 {
-                let i = Vec3::new(-o.x + a as f32 * 0.03, e as f32 * 0.03, o.z).normalize();
-                let rho = brdf::Brdf::eval(&truth, i, o).to_array();
-                samples.push(Sample { i, rho, var: 1e-8, channel_var: [1e-8; 3], kernel_rad: 0.01 });
-            }
-        }
+        let samples = lit_around_mirror(&truth, o, 10, 0.03);
         let maps = PointMaps::alike(1);
         let ev = Evidence { cluster: vec![0], clusters: 1, samples: vec![samples], view: vec![o] };
         // Started from the shape with the old bound's index.
