@@ -2,8 +2,8 @@
 # The whole test suite, from a fresh clone: system packages, the workspace's
 # tests (end-to-end runs of the binaries included), the firmware protocol's
 # no_std build, the Python examples, the exported formats in their
-# tools, the V4L2 backend against the kernel's vivid driver in a QEMU
-# guest, and the daemon's systemd unit.
+# tools, the daemon's web page in a real browser, the V4L2 backend against
+# the kernel's vivid driver in a QEMU guest, and the daemon's systemd unit.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
@@ -15,6 +15,8 @@ cargo test --workspace --no-fail-fast
 bash scripts/python-test.sh
 # The glTF and EXR files through the Khronos validator and oiiotool.
 bash scripts/formats-test.sh
+# The daemon's web page in headless chromium.
+bash scripts/web-test.sh
 # The V4L2 tests (not a `cargo test` target: this kernel has no V4L2) in a QEMU guest.
 bash scripts/vm-test.sh
 # The shipped systemd unit, checked against the freshly built daemon.

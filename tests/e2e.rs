@@ -710,3 +710,187 @@ fn capture_calibrates_the_geometry_and_uses_it() {
         assert!(e < 0.4, "LED {k} is {e} mm from where it is");
     }
 }
+
+/// One HTTP/1.1 request to the daemon's web page: status and body.
+fn http(addr: &str, method: &str, path: &str, token: Option<&str>, body: &str) -> (u16, Vec<u8>) {
+    use std::io::{Read, Write};
+    let mut c = std::net::TcpStream::connect(addr).unwrap();
+    let auth = token.map(|t| format!("Authorization: Bearer {t}\r\n")).unwrap_or_default();
+    write!(
+        c,
+        "{method} {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n{auth}Content-Type: application/json\r\n\
+         Content-Length: {}\r\n\r\n{body}",
+        body.len()
+    )
+    .unwrap();
+    let mut raw = Vec::new();
+    c.read_to_end(&mut raw).unwrap();
+    let split = raw.windows(4).position(|w| w == b"\r\n\r\n").expect("an HTTP response");
+    let head = String::from_utf8_lossy(&raw[..split]).into_owned();
+    let status = head.split(' ').nth(1).and_then(|s| s.parse().ok()).expect("a status");
+    (status, raw[split + 4..].to_vec())
+}
+
+fn http_json(addr: &str, path: &str) -> serde_json::Value {
+    let (status, body) = http(addr, "GET", path, None, "");
+    assert_eq!(status, 200, "GET {path}: {}", String::from_utf8_lossy(&body));
+    serde_json::from_slice(&body).unwrap()
+}
+
+/// Poll the page's board until `done` holds (a capture takes seconds).
+fn board_until(addr: &str, what: &str, done: impl Fn(&serde_json::Value) -> bool) -> serde_json::Value {
+    let t = std::time::Instant::now();
+    loop {
+        let b = http_json(addr, "/api/state");
+        if done(&b) {
+            return b;
+        }
+        assert!(t.elapsed().as_secs() < 300, "waited 300 s for {what}: {b}");
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+}
+
+#[test]
+fn the_daemons_web_page_follows_starts_and_cancels_a_capture_with_its_token() {
+    use std::io::BufRead;
+    use std::os::unix::fs::PermissionsExt;
+    let lab = Lab::new();
+    let socket = lab.path("daemon.sock");
+    let mut daemon = lab
+        .cmd(REFL)
+        .args(["daemon", "--http", "127.0.0.1:0"])
+        .env("REFLECTOMETER_SOCKET", &socket)
+        .env("RUST_LOG", "info")
+        .env("NO_COLOR", "1")
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    // The daemon prints where the page is; its log is kept for the end.
+    let (tx, rx) = std::sync::mpsc::channel::<String>();
+    let mut log = std::io::BufReader::new(daemon.stderr.take().unwrap());
+    std::thread::spawn(move || {
+        let mut l = String::new();
+        while log.read_line(&mut l).unwrap_or(0) > 0 {
+            let _ = tx.send(std::mem::take(&mut l));
+        }
+    });
+    let mut lines = Vec::new();
+    let addr = loop {
+        let l = rx.recv_timeout(std::time::Duration::from_secs(60)).expect("the daemon prints the page's address");
+        lines.push(l.clone());
+        if let Some(rest) = l.split("web page on http://").nth(1) {
+            break rest.split('/').next().unwrap().to_string();
+        }
+    };
+    let token_file = lab.path("http-token");
+    let token = std::fs::read_to_string(&token_file).unwrap().trim().to_string();
+    assert_eq!(token.len(), 32, "{token}");
+    let mode = std::fs::metadata(&token_file).unwrap().permissions().mode() & 0o777;
+    assert_eq!(mode, 0o640, "the token is for the owner and the rig's group only");
+
+    let (status, page) = http(&addr, "GET", "/", None, "");
+    assert_eq!(status, 200);
+    assert!(String::from_utf8_lossy(&page).contains("/app.js"));
+    assert_eq!(http_json(&addr, "/api/state")["state"], "idle");
+    let rig = http_json(&addr, "/api/rig");
+    assert_eq!(rig["kind"], "sim", "{rig}");
+    assert!(http_json(&addr, "/api/samples")["builtin"].as_array().unwrap().iter().any(|s| s["name"] == "satin"));
+
+    // Starting needs the token: none, or a wrong one, is refused and starts nothing.
+    let start = r#"{"sample":"satin","quality":"fast","overrides":{"steps":12,"grid":12,"camera_px":64}}"#;
+    assert_eq!(http(&addr, "POST", "/api/capture", None, start).0, 401);
+    assert_eq!(http(&addr, "POST", "/api/capture", Some("0123456789abcdef0123456789abcdef"), start).0, 403);
+    assert_eq!(http(&addr, "POST", "/api/cancel", Some("x"), "").0, 403);
+    assert_eq!(http_json(&addr, "/api/state")["state"], "idle");
+    // A sample name that could leave the captures directory is refused.
+    let (status, _) = http(&addr, "POST", "/api/capture", Some(&token), r#"{"sample":"../x"}"#);
+    assert_eq!(status, 400);
+    assert_eq!(http(&addr, "POST", "/api/capture", Some(&token), r#"{"sample":"satin","qualty":"fast"}"#).0, 400);
+
+    let (status, body) = http(&addr, "POST", "/api/capture", Some(&token), start);
+    assert_eq!(status, 202, "{}", String::from_utf8_lossy(&body));
+    let out =
+        std::path::PathBuf::from(serde_json::from_slice::<serde_json::Value>(&body).unwrap()["out"].as_str().unwrap());
+    assert!(out.starts_with(lab.path("data/captures")), "{}", out.display());
+    // One capture at a time.
+    assert_eq!(http(&addr, "POST", "/api/capture", Some(&token), start).0, 409);
+
+    // The page's live stream: the first event is the whole board.
+    {
+        use std::io::{Read, Write};
+        let mut c = std::net::TcpStream::connect(&addr).unwrap();
+        write!(c, "GET /api/events HTTP/1.1\r\nHost: {addr}\r\n\r\n").unwrap();
+        c.set_read_timeout(Some(std::time::Duration::from_secs(30))).unwrap();
+        let mut got = Vec::new();
+        let mut buf = [0u8; 4096];
+        while !String::from_utf8_lossy(&got).contains("\n\n") || !String::from_utf8_lossy(&got).contains("data:") {
+            let n = c.read(&mut buf).unwrap();
+            assert!(n > 0, "the event stream ended");
+            got.extend_from_slice(&buf[..n]);
+        }
+        let text = String::from_utf8_lossy(&got);
+        assert!(text.contains("text/event-stream"), "{text}");
+        assert!(text.contains("event: state"), "{text}");
+    }
+
+    // Progress advances, the camera view arrives, the link is counted.
+    let b = board_until(&addr, "frames and a camera view", |b| {
+        b["frames"]["done"].as_u64().unwrap_or(0) > 0 && b["frame_seq"].as_u64().unwrap_or(0) > 0
+    });
+    assert_eq!(b["job"]["sample"], "satin");
+    let (status, png) = http(&addr, "GET", "/api/frame.png", None, "");
+    assert_eq!(status, 200);
+    assert_eq!(&png[..8], b"\x89PNG\r\n\x1a\n");
+    let b = board_until(&addr, "the result's glTF and evaluation", |b| {
+        b["state"] == "idle" && b["result"]["exit"] == 0 && !b["result"]["eval"].is_null()
+    });
+    let r = &b["result"];
+    assert!(r["problems"].as_array().unwrap().is_empty(), "{r}");
+    assert!(b["link"]["commands"].as_u64().unwrap() > 0, "{b}");
+    // The simulated rig calibrated itself for the capture: the page sees it.
+    let rig = http_json(&addr, "/api/rig");
+    assert_eq!(rig["calibration"]["age_days"], 0, "{rig}");
+    assert_eq!(rig["calibration"]["geometric"], true, "{rig}");
+    assert!(b["log"].as_array().unwrap().iter().any(|l| l["kind"] == "stage"), "{b}");
+    // The evaluation is `refl eval`'s, with the truth of the simulated sample.
+    assert_eq!(r["eval"]["ground_truth"], true);
+    assert!(r["eval"]["models"]["ggx_aniso"]["render_rel_rmse"].as_f64().is_some(), "{r}");
+    let renders: Vec<&str> = r["renders"].as_array().unwrap().iter().map(|v| v.as_str().unwrap()).collect();
+    assert!(renders.contains(&"sky.png"), "{renders:?}");
+    let (status, png) = http(&addr, "GET", "/result/renders/sky.png", None, "");
+    assert_eq!(status, 200);
+    assert_eq!(png, std::fs::read(out.join("renders/sky.png")).unwrap());
+    let gltf = http_json(&addr, &format!("/result/gltf/{}", r["gltf"].as_str().unwrap()));
+    assert!(gltf["extensionsUsed"].as_array().unwrap().iter().any(|e| e == "KHR_materials_anisotropy"), "{gltf}");
+    // Nothing outside the results is served.
+    for bad in ["/result/renders/..%2Fcapture.json", "/result/renders/.x", "/vendor/three/../../etc/passwd"] {
+        let (status, _) = http(&addr, "GET", bad, None, "");
+        assert!(status == 400 || status == 404, "{bad}: {status}");
+    }
+
+    // Cancel mid-capture: the job stops and leaves a resumable capture.
+    let long = r#"{"sample":"velvet","quality":"fast","overrides":{"steps":64,"grid":12,"camera_px":64}}"#;
+    let (status, body) = http(&addr, "POST", "/api/capture", Some(&token), long);
+    assert_eq!(status, 202, "{}", String::from_utf8_lossy(&body));
+    let out =
+        std::path::PathBuf::from(serde_json::from_slice::<serde_json::Value>(&body).unwrap()["out"].as_str().unwrap());
+    board_until(&addr, "frames", |b| b["frames"]["done"].as_u64().unwrap_or(0) > 0);
+    let (status, body) = http(&addr, "POST", "/api/cancel", Some(&token), "");
+    assert_eq!(status, 200);
+    assert_eq!(serde_json::from_slice::<serde_json::Value>(&body).unwrap()["cancelled"], true);
+    let b = board_until(&addr, "the cancelled job's end", |b| b["state"] == "idle" && !b["result"].is_null());
+    assert_eq!(b["result"]["exit"], 130, "{b}");
+    let info: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("capture.json")).unwrap()).unwrap();
+    assert_eq!(info["status"], "interrupted", "{info}");
+
+    // SIGTERM: the daemon and its page stop; the token goes with them.
+    // SAFETY: plain kill(2) on our own child's pid.
+    unsafe { libc::kill(daemon.id() as i32, libc::SIGTERM) };
+    let status = daemon.wait().unwrap();
+    assert!(status.success(), "daemon exit {status:?}");
+    assert!(!token_file.exists());
+    lines.extend(rx.try_iter());
+    let log = lines.concat();
+    assert!(log.contains("refused: no token") && log.contains("refused: wrong token"), "{log}");
+}

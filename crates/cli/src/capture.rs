@@ -327,6 +327,8 @@ struct Shooter<'a, C: Camera> {
     /// Shots passed over (an adaptive bracket's shorter exposures nobody
     /// needs), which leave the total.
     passed: HashSet<u32>,
+    /// When the link's counters were last reported.
+    link_shown: Option<Instant>,
 }
 
 /// The frame's window (x0, y0, x1, y1, pixels) that holds everything the
@@ -442,6 +444,7 @@ impl<C: Camera> Exposer for Shooter<'_, C> {
         tokio::task::block_in_place(|| {
             self.store.write_frame(kind, &frame, Some(clock::to_mono(lit_at)), Some(clipped))
         })?;
+        self.rep.frame(&frame);
         if let Some(fit) = self.fit {
             // Waits (without holding a runtime worker) while the fitter is
             // 32 frames behind.
@@ -455,9 +458,27 @@ impl<C: Camera> Exposer for Shooter<'_, C> {
         Ok(())
     }
 
+    fn link(&mut self, l: &rig::mcu::LinkStats) {
+        if self.link_shown.is_some_and(|t| t.elapsed() < Duration::from_secs(1)) {
+            return;
+        }
+        self.link_shown = Some(Instant::now());
+        self.rep.emit(Event::Link(link_report(l)));
+    }
+
     fn discarded(&mut self, shot: &Shot) {
         self.discarded += 1;
         self.rep.warn(format!("retaking step {} LED {}: the rig recovered while it was exposed", shot.step, shot.led));
+    }
+}
+
+fn link_report(l: &rig::mcu::LinkStats) -> report::LinkReport {
+    report::LinkReport {
+        commands: l.commands,
+        retransmits: l.retransmits,
+        stale_replies: l.stale_replies,
+        bad_frames: l.bad_frames,
+        mean_rtt_us: l.mean_rtt().map(|d| d.as_secs_f64() * 1e6),
     }
 }
 
@@ -641,14 +662,9 @@ pub async fn run(req: CaptureRequest, rep: &mut Reporter, cancel: watch::Receive
             .await;
     s.close().await;
     report.time("capture_s", capture_started.elapsed().as_secs_f64());
-    let link = s.rig.link_stats();
-    report.link = Some(report::LinkReport {
-        commands: link.commands,
-        retransmits: link.retransmits,
-        stale_replies: link.stale_replies,
-        bad_frames: link.bad_frames,
-        mean_rtt_us: link.mean_rtt().map(|d| d.as_secs_f64() * 1e6),
-    });
+    let link = link_report(&s.rig.link_stats());
+    rep.emit(Event::Link(link.clone()));
+    report.link = Some(link);
     report.recoveries = s.rig.recoveries().iter().map(|r| format!("{r:?}")).collect();
     let (stats, discards) = match outcome {
         Ok(x) => x,
@@ -789,6 +805,7 @@ async fn capture_frames<K: Connector, C: Camera>(
             window,
             clipped,
             passed: HashSet::new(),
+            link_shown: None,
         };
         let stats = sequence::run(rig, &todo, &mut shooter).await?;
         let discards = shooter.camera.discards().await;

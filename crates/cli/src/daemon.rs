@@ -65,6 +65,107 @@ struct Running {
     progress: Option<Event>,
 }
 
+/// The daemon's state, shared by its socket's clients and its web page.
+pub struct Daemon {
+    job: Mutex<Option<Running>>,
+    /// The web page's live board, when the daemon serves one.
+    live: Option<Arc<crate::web::Live>>,
+}
+
+impl std::fmt::Debug for Daemon {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Daemon").field("live", &self.live).finish()
+    }
+}
+
+impl Daemon {
+    fn job(&self) -> std::sync::MutexGuard<'_, Option<Running>> {
+        self.job.lock().unwrap_or_else(|p| p.into_inner())
+    }
+}
+
+/// A job started by [`start_job`]: its progress events while it runs,
+/// and its exit code.
+#[derive(Debug)]
+pub struct Job {
+    pub events: mpsc::UnboundedReceiver<Event>,
+    pub exit: tokio::task::JoinHandle<i32>,
+}
+
+/// Start a capture job unless one is running (then the answer is the
+/// message for the operator). The job goes on whether or not anyone reads
+/// its events.
+pub fn start_job(d: &Arc<Daemon>, request: CaptureRequest) -> std::result::Result<Job, String> {
+    let (cancel_tx, cancel_rx) = watch::channel(false);
+    let info = JobInfo { sample: request.sample.clone(), out: request.out.clone().or(request.resume.clone()) };
+    {
+        let mut g = d.job();
+        if let Some(r) = g.as_ref() {
+            return Err(format!(
+                "busy: the rig is capturing '{}' into {}; wait for it, or stop it with `refl daemon --cancel`",
+                r.info.sample.as_deref().unwrap_or("?"),
+                r.info.out.as_ref().map_or("?".into(), |p| p.display().to_string())
+            ));
+        }
+        *g = Some(Running { info: info.clone(), cancel: cancel_tx, progress: None });
+    }
+    if let Some(live) = &d.live {
+        live.started(&info);
+    }
+    sd_notify(&format!("STATUS=capturing {}", info.sample.as_deref().unwrap_or("?")));
+    let (tx, events) = mpsc::unbounded_channel::<Event>();
+    let d2 = d.clone();
+    let exit = tokio::spawn(async move {
+        let latest = d2.clone();
+        let mut rep = Reporter::new(Mode::Plain).forward_to(move |e| {
+            if matches!(e, Event::Frames { .. } | Event::Fit(_))
+                && let Some(r) = latest.job().as_mut()
+            {
+                r.progress = Some(e.clone());
+            }
+            if let Some(live) = &latest.live {
+                live.record(e);
+            }
+            let _ = tx.send(e.clone());
+        });
+        if let Some(live) = d2.live.clone() {
+            rep = rep.frames_to(move |f| live.frame(f));
+        }
+        let r = capture::run(request, &mut rep, cancel_rx).await;
+        let (code, message) = match &r {
+            Ok(_) => (0, None),
+            Err(e) => {
+                rep.emit(Event::Error { message: format!("{e:#}") });
+                (crate::exit::code(e), Some(format!("{e:#}")))
+            }
+        };
+        *d2.job() = None;
+        sd_notify("STATUS=idle");
+        if let Some(live) = d2.live.clone() {
+            let dir = r.as_ref().ok().map(|s| s.dir.clone()).or(info.out.clone());
+            live.ended(&info, dir.as_deref(), code, message);
+            if let (0, Some(dir)) = (code, dir) {
+                tokio::task::spawn_blocking(move || live.evaluate(&dir));
+            }
+        }
+        code
+    });
+    Ok(Job { events, exit })
+}
+
+/// Interrupt the running job, as Ctrl-C would; false when none runs.
+pub fn cancel_job(d: &Daemon) -> bool {
+    let c = d.job().as_ref().map(|r| r.cancel.clone());
+    c.is_some_and(|c| c.send(true).is_ok())
+}
+
+/// The web page a daemon serves: where, and where its npm modules are.
+#[derive(Clone, Debug)]
+pub struct Http {
+    pub addr: std::net::SocketAddr,
+    pub modules: Option<PathBuf>,
+}
+
 /// Where a daemon listens: `$REFLECTOMETER_SOCKET`, else systemd's
 /// `$RUNTIME_DIRECTORY/daemon.sock`, else `runtime_dir()/daemon.sock`.
 pub fn default_socket() -> PathBuf {
@@ -124,9 +225,19 @@ fn bind(path: &Path) -> Result<UnixListener> {
 /// Run the daemon until `stop` turns true (the process's signal watcher:
 /// SIGTERM, Ctrl-C). A running job is interrupted first, whatever stage it
 /// is in: LEDs off, gantry stopped, frames kept, a resumable capture left.
-pub async fn serve(socket: &Path, mut stop: watch::Receiver<bool>) -> Result<()> {
+/// With `http`, the web page is served too (`crate::web`).
+pub async fn serve(socket: &Path, http: Option<Http>, mut stop: watch::Receiver<bool>) -> Result<()> {
     let listener = bind(socket)?;
-    let job: Arc<Mutex<Option<Running>>> = Arc::new(Mutex::new(None));
+    let runtime = socket.parent().unwrap_or(Path::new(".")).to_path_buf();
+    let live = http.as_ref().map(|_| Arc::new(crate::web::Live::new(runtime.join("web"))));
+    let daemon = Arc::new(Daemon { job: Mutex::new(None), live: live.clone() });
+    let mut page = match (http, live) {
+        (Some(h), Some(live)) => {
+            let (d, s) = (daemon.clone(), stop.clone());
+            Some(tokio::spawn(async move { crate::web::serve(h.addr, d, live, &runtime, h.modules, s).await }))
+        }
+        _ => None,
+    };
     tracing::info!("daemon listening on {}", socket.display());
     sd_notify("READY=1\nSTATUS=idle");
     let watchdog = std::env::var("WATCHDOG_USEC").ok().and_then(|v| v.parse::<u64>().ok());
@@ -135,9 +246,9 @@ pub async fn serve(socket: &Path, mut stop: watch::Receiver<bool>) -> Result<()>
         tokio::select! {
             a = listener.accept() => match a {
                 Ok((stream, _)) => {
-                    let job = job.clone();
+                    let daemon = daemon.clone();
                     tokio::spawn(async move {
-                        if let Err(e) = handle(stream, job).await {
+                        if let Err(e) = handle(stream, daemon).await {
                             tracing::warn!(error = %e, "client connection failed");
                         }
                     });
@@ -145,17 +256,23 @@ pub async fn serve(socket: &Path, mut stop: watch::Receiver<bool>) -> Result<()>
                 Err(e) => break Err(anyhow!("accept on {}: {e}", socket.display())),
             },
             _ = ping.tick() => if watchdog.is_some() { sd_notify("WATCHDOG=1") },
+            r = async { page.as_mut().expect("guarded").await }, if page.is_some() => {
+                page = None;
+                match r {
+                    Ok(Ok(())) => {}
+                    Ok(Err(e)) => break Err(e),
+                    Err(e) => break Err(anyhow!("the web page's task failed: {e}")),
+                }
+            }
             _ = stop.wait_for(|s| *s) => break Ok(()),
         }
     };
     sd_notify("STOPPING=1");
     // Stop a running job and give it time to switch the rig off.
-    let cancel = job.lock().unwrap_or_else(|p| p.into_inner()).as_ref().map(|r| r.cancel.clone());
-    if let Some(c) = cancel {
+    if cancel_job(&daemon) {
         tracing::info!("stopping the running capture");
-        let _ = c.send(true);
         for _ in 0..100 {
-            if job.lock().unwrap_or_else(|p| p.into_inner()).is_none() {
+            if daemon.job().is_none() {
                 break;
             }
             tokio::time::sleep(Duration::from_millis(100)).await;
@@ -172,7 +289,7 @@ async fn send_line(w: &mut (impl AsyncWriteExt + Unpin), v: &impl Serialize) -> 
     w.flush().await
 }
 
-async fn handle(stream: UnixStream, job: Arc<Mutex<Option<Running>>>) -> Result<()> {
+async fn handle(stream: UnixStream, daemon: Arc<Daemon>) -> Result<()> {
     let (r, mut w) = stream.into_split();
     let mut line = String::new();
     if BufReader::new(r).take(1 << 20).read_line(&mut line).await? == 0 {
@@ -189,75 +306,36 @@ async fn handle(stream: UnixStream, job: Arc<Mutex<Option<Running>>>) -> Result<
     };
     match req {
         Request::Status => {
-            let (busy, progress) = match job.lock().unwrap_or_else(|p| p.into_inner()).as_ref() {
+            let (busy, progress) = match daemon.job().as_ref() {
                 Some(r) => (Some(r.info.clone()), r.progress.clone()),
                 None => (None, None),
             };
             send_line(&mut w, &serde_json::json!({ "busy": busy, "progress": progress })).await?;
         }
         Request::Cancel => {
-            let c = job.lock().unwrap_or_else(|p| p.into_inner()).as_ref().map(|r| r.cancel.clone());
-            let cancelled = c.is_some_and(|c| c.send(true).is_ok());
+            let cancelled = cancel_job(&daemon);
             send_line(&mut w, &serde_json::json!({ "cancelled": cancelled })).await?;
         }
         Request::Capture { request } => {
-            let (cancel_tx, cancel_rx) = watch::channel(false);
-            let info = JobInfo { sample: request.sample.clone(), out: request.out.clone().or(request.resume.clone()) };
-            let busy = {
-                let mut g = job.lock().unwrap_or_else(|p| p.into_inner());
-                match g.as_ref() {
-                    Some(r) => Some(format!(
-                        "busy: the rig is capturing '{}' into {}; wait for it, or stop it with `refl daemon --cancel`",
-                        r.info.sample.as_deref().unwrap_or("?"),
-                        r.info.out.as_ref().map_or("?".into(), |p| p.display().to_string())
-                    )),
-                    None => {
-                        *g = Some(Running { info: info.clone(), cancel: cancel_tx, progress: None });
-                        None
-                    }
+            let Job { mut events, exit } = match start_job(&daemon, request) {
+                Ok(j) => j,
+                Err(msg) => {
+                    send_line(&mut w, &Event::Error { message: msg }).await?;
+                    send_line(&mut w, &serde_json::json!({ "exit": BUSY })).await?;
+                    return Ok(());
                 }
             };
-            if let Some(msg) = busy {
-                send_line(&mut w, &Event::Error { message: msg }).await?;
-                send_line(&mut w, &serde_json::json!({ "exit": BUSY })).await?;
-                return Ok(());
-            }
-            sd_notify(&format!("STATUS=capturing {}", info.sample.as_deref().unwrap_or("?")));
-            let (tx, mut rx) = mpsc::unbounded_channel::<Event>();
-            let job2 = job.clone();
-            let worker = tokio::spawn(async move {
-                let latest = job2.clone();
-                let mut rep = Reporter::new(Mode::Plain).forward_to(move |e| {
-                    if matches!(e, Event::Frames { .. } | Event::Fit(_)) {
-                        if let Some(r) = latest.lock().unwrap_or_else(|p| p.into_inner()).as_mut() {
-                            r.progress = Some(e.clone());
-                        }
-                    }
-                    let _ = tx.send(e.clone());
-                });
-                let r = capture::run(request, &mut rep, cancel_rx).await;
-                let code = match &r {
-                    Ok(_) => 0,
-                    Err(e) => {
-                        rep.emit(Event::Error { message: format!("{e:#}") });
-                        crate::exit::code(e)
-                    }
-                };
-                *job2.lock().unwrap_or_else(|p| p.into_inner()) = None;
-                sd_notify("STATUS=idle");
-                code
-            });
             // Relay events while the client listens; the job goes on without it.
             let mut client = Some(w);
-            while let Some(e) = rx.recv().await {
-                if let Some(c) = client.as_mut() {
-                    if send_line(c, &e).await.is_err() {
-                        tracing::warn!("the client went away; the capture goes on");
-                        client = None;
-                    }
+            while let Some(e) = events.recv().await {
+                if let Some(c) = client.as_mut()
+                    && send_line(c, &e).await.is_err()
+                {
+                    tracing::warn!("the client went away; the capture goes on");
+                    client = None;
                 }
             }
-            let code = worker.await.unwrap_or(crate::exit::FAILED);
+            let code = exit.await.unwrap_or(crate::exit::FAILED);
             if let Some(mut c) = client {
                 send_line(&mut c, &serde_json::json!({ "exit": code })).await?;
             }

@@ -13,6 +13,7 @@ pub mod output;
 pub mod paths;
 pub mod progress;
 pub mod session;
+pub mod web;
 
 /// Exit codes of the binaries, and the one place that maps an error to its
 /// code (both binaries and the daemon use [`exit::code`]).

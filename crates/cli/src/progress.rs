@@ -24,6 +24,9 @@ pub enum Event {
     },
     /// The fit's stage after the last frame and its counts.
     Fit(fit::progress::Snapshot),
+    /// The serial link's counters so far (about once a second while
+    /// capturing; the web page shows them).
+    Link(assess::report::LinkReport),
     Warning {
         message: String,
     },
@@ -50,8 +53,13 @@ pub struct Reporter {
     fit_bar: Option<(ProgressBar, FitStage, Option<FitStage>)>,
     started: Instant,
     last_plain: Instant,
-    forward: Option<Box<dyn FnMut(&Event) + Send>>,
+    forward: Option<Sink<Event>>,
+    /// Shown each frame as it is stored (the web page's camera view).
+    frames: Option<Sink<frame::Frame>>,
 }
+
+/// Where a reporter also sends what it is given.
+type Sink<T> = Box<dyn FnMut(&T) + Send>;
 
 impl std::fmt::Debug for Reporter {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -61,7 +69,15 @@ impl std::fmt::Debug for Reporter {
 
 impl Reporter {
     pub fn new(mode: Mode) -> Self {
-        Self { mode, bar: None, fit_bar: None, started: Instant::now(), last_plain: Instant::now(), forward: None }
+        Self {
+            mode,
+            bar: None,
+            fit_bar: None,
+            started: Instant::now(),
+            last_plain: Instant::now(),
+            forward: None,
+            frames: None,
+        }
     }
 
     /// Choose the mode for this process: JSON if asked, a bar on a
@@ -81,6 +97,19 @@ impl Reporter {
     pub fn forward_to(mut self, f: impl FnMut(&Event) + Send + 'static) -> Self {
         self.forward = Some(Box::new(f));
         self
+    }
+
+    /// Also show every stored frame to `f`.
+    pub fn frames_to(mut self, f: impl FnMut(&frame::Frame) + Send + 'static) -> Self {
+        self.frames = Some(Box::new(f));
+        self
+    }
+
+    /// A frame the capture stored.
+    pub fn frame(&mut self, f: &frame::Frame) {
+        if let Some(show) = self.frames.as_mut() {
+            show(f);
+        }
     }
 
     pub fn emit(&mut self, e: Event) {
@@ -111,6 +140,7 @@ impl Reporter {
                         tracing::info!("{}", describe_fit(f));
                     }
                 }
+                Event::Link(_) => {}
                 Event::Stage { stage, detail } => tracing::info!("{stage}: {detail}"),
                 Event::Warning { message } => tracing::warn!("{message}"),
                 Event::Done { .. } => tracing::info!("done in {:.1} s", self.started.elapsed().as_secs_f64()),
@@ -162,6 +192,7 @@ impl Reporter {
                         eprintln!("{stage}: {detail}");
                     }
                 }
+                Event::Link(_) => {}
                 Event::Warning { message } => eprintln!("warning: {message}"),
                 Event::Done { .. } => eprintln!("done in {:.1} s", self.started.elapsed().as_secs_f64()),
                 Event::Error { message } => eprintln!("error: {message}"),

@@ -147,7 +147,10 @@ pub fn preset(name: &str) -> Option<Quality> {
 }
 
 /// Individual overrides of a preset's knobs (each `None` keeps the preset).
+/// A misspelt knob (from the daemon's socket or web page) is an error, not
+/// a setting silently left at the preset's.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Overrides {
     pub steps: Option<u32>,
     pub led_stride: Option<u8>,

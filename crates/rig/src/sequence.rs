@@ -47,6 +47,8 @@ pub trait Exposer {
     }
     /// An exposure the rig confirmed.
     fn commit(&mut self, shot: &Shot, item: Self::Item) -> impl Future<Output = Result<(), Self::Error>>;
+    /// The link's counters after a commit (the capture shows them live).
+    fn link(&mut self, _stats: &crate::mcu::LinkStats) {}
     /// An exposure discarded because the rig recovered while it was taken.
     fn discarded(&mut self, shot: &Shot) {
         tracing::info!(step = shot.step, led = shot.led, "retaking a shot: the rig recovered while it was exposed");
@@ -124,6 +126,7 @@ async fn run_inner<C: Connector, E: Exposer>(
             if let Some((k, item, e)) = pending.take() {
                 if rig.epoch() == e {
                     exposer.commit(&shots[k], item).await?;
+                    exposer.link(&rig.link_stats());
                     stats.committed += 1;
                 } else {
                     exposer.discarded(&shots[k]);
@@ -147,6 +150,7 @@ async fn run_inner<C: Connector, E: Exposer>(
         rig.all_off().await?;
         if rig.epoch() == e {
             exposer.commit(&shots[k], item).await?;
+            exposer.link(&rig.link_stats());
             stats.committed += 1;
             break;
         }

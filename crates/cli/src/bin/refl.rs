@@ -92,6 +92,15 @@ enum Cmd {
         /// Stop the running daemon's capture (LEDs off, frames kept).
         #[arg(long)]
         cancel: bool,
+        /// Also serve the rig's web page on ADDR (default 127.0.0.1:8470,
+        /// loopback only): live state, camera view, results, 3D viewer;
+        /// starting and cancelling need the token it prints.
+        #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = cli::web::DEFAULT_ADDR)]
+        http: Option<std::net::SocketAddr>,
+        /// npm modules holding three.js for the page's viewer (default: the
+        /// source tree's web/node_modules, else /usr/share/reflectometer/web/node_modules).
+        #[arg(long, value_name = "DIR", requires = "http")]
+        web_modules: Option<std::path::PathBuf>,
     },
     /// The speed/accuracy trade-off: simulated captures of SAMPLE at several
     /// settings, each fitted and scored; writes DIR/tradeoff.json and
@@ -389,7 +398,7 @@ fn main() -> ExitCode {
                 }
                 Ok(())
             }
-            Cmd::Daemon { socket, status, cancel } => {
+            Cmd::Daemon { socket, status, cancel, http, web_modules } => {
                 if status || cancel {
                     let socket = match socket {
                         Some(s) => s,
@@ -409,7 +418,8 @@ fn main() -> ExitCode {
                     return Ok(());
                 }
                 let socket = socket.unwrap_or_else(cli::daemon::default_socket);
-                cli::daemon::serve(&socket, stop).await
+                let http = http.map(|addr| cli::daemon::Http { addr, modules: cli::web::find_modules(web_modules) });
+                cli::daemon::serve(&socket, http, stop).await
             }
             Cmd::Tradeoff { sample, out, settings, replot } => {
                 let mut rep = cli::progress::Reporter::new(cli::progress::Mode::Plain);
