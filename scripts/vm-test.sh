@@ -9,9 +9,12 @@
 # `vivid` test target of crates/rig (`test = false`: not run by `cargo test`),
 # then the hardware capture path end to end (scripts/vm/guest-capture.sh:
 # `capture` with a hardware rig file, the emulated MCU on a pseudo-terminal,
-# vivid as the camera; the geometric scan up to its first prompt), and
-# prints both exit statuses; anything else, a
-# guest that does not boot included, fails this script.
+# vivid as the camera; the geometric scan up to its first prompt), then the
+# rig PC's USB serial path (scripts/vm/guest-usb.sh: udevd with the shipped
+# rules, a g_serial gadget on dummy_hcd as the microcontroller's port, a
+# clean capture, a real unplug and replug mid-capture, and one that never
+# comes back), and prints the three exit statuses; anything else, a guest
+# that does not boot included, fails this script.
 #
 # Usage: bash scripts/vm-test.sh [extra test-binary arguments, e.g. a filter]
 # Needs: qemu-system-x86, busybox-static, cpio, kmod (scripts/setup.sh).
@@ -70,18 +73,48 @@ sed 's/^kind = "hardware"/kind = "sim"/' "$rigfile" >"$vm/vivid-sim.toml"
 name=$(sed -n 's/^name *= *"\(.*\)"/\1/p' "$rigfile")
 mv "$vm/vivid-calib/$name-ideal" "$vm/vivid-calib/$name"
 
+# udevd for the USB serial part (scripts/vm/guest-usb.sh): Debian's udev
+# and the systemd library it links, unpacked once into target/vm.
+uroot="$vm/udev-root"
+if [ ! -x "$uroot/bin/udevadm" ]; then
+  rm -rf "$uroot.tmp" && mkdir -p "$uroot.tmp"
+  (cd "$uroot.tmp" && apt-get download udev libsystemd-shared >/dev/null 2>&1) || {
+    echo "vm-test: could not download udev" >&2; exit 1; }
+  for d in "$uroot.tmp"/*.deb; do dpkg-deb -x "$d" "$uroot.tmp/root"; done
+  mv "$uroot.tmp/root" "$uroot" && rm -rf "$uroot.tmp"
+fi
+
 # 3. The initramfs: busybox, the test binary, capture and refl and their
 #    libraries, the rig file and calibration, vivid and the modules it
 #    depends on (in load order), and /init.
 ird="$vm/initramfs"
-rm -rf "$ird" && mkdir -p "$ird"/{bin,dev,proc,sys,tmp,modules,tests,etc}
+rm -rf "$ird" && mkdir -p "$ird"/{bin,dev,proc,sys,tmp,run,modules,modules-usb,tests,etc/udev/rules.d,lib/udev/rules.d,lib/systemd}
 cp "$busybox" "$ird/bin/busybox"
 cp "$exe" "$ird/tests/vivid"
 cp $bins "$ird/bin/"
 cp "$root/scripts/vm/guest-capture.sh" "$ird/tests/capture.sh"
+cp "$root/scripts/vm/guest-usb.sh" "$ird/tests/usb.sh"
 cp "$rigfile" "$ird/etc/vivid-rig.toml"
+# The same rig reached as a rig PC reaches it: through the udev links.
+sed -e 's#^path = .*#path = "/dev/reflectometer/mcu"#' -e 's#^device = "/dev/video0"#device = "/dev/reflectometer/camera"#' \
+  "$rigfile" >"$ird/etc/usb-rig.toml"
 cp -r "$vm/vivid-calib" "$ird/etc/vivid-calib"
-for lib in $(ldd "$exe" $bins | grep -v ':$' | grep -o '/[^ ]*' | sort -u); do
+# udevd, with the shipped rules, Debian's defaults for ttys, and a rule
+# that names vivid (a platform device: no USB ids) as the rig's camera.
+cp "$uroot/bin/udevadm" "$ird/bin/udevadm"
+ln -s /bin/udevadm "$ird/lib/systemd/systemd-udevd"
+ushared=$(ls "$uroot"/usr/lib/x86_64-linux-gnu/systemd/libsystemd-shared-*.so)
+mkdir -p "$ird/usr/lib/x86_64-linux-gnu/systemd" && cp "$ushared" "$ird/usr/lib/x86_64-linux-gnu/systemd/"
+cp "$uroot"/lib/udev/rules.d/{50-udev-default,60-serial}.rules "$ird/lib/udev/rules.d/"
+cp "$root/udev/70-reflectometer.rules" "$ird/etc/udev/rules.d/"
+cat >"$ird/etc/udev/rules.d/71-vivid-camera.rules" <<'EOF'
+# The test's camera: vivid's capture node, linked as the shipped rule links a USB camera.
+SUBSYSTEM=="video4linux", ATTR{name}=="vivid-000-vid-cap", SYMLINK+="reflectometer/camera", GROUP="video", MODE="0660"
+EOF
+printf 'root:x:0:0:root:/tmp:/bin/sh\n' >"$ird/etc/passwd"
+printf 'root:x:0:\ndialout:x:20:\nvideo:x:44:\n' >"$ird/etc/group"
+for lib in $(LD_LIBRARY_PATH="$(dirname "$ushared")" ldd "$exe" $bins "$uroot/bin/udevadm" | grep -v ':$' \
+  | grep -o '/[^ ]*' | grep -v '/systemd/libsystemd-shared' | sort -u); do
   mkdir -p "$ird$(dirname "$lib")" && cp -L "$lib" "$ird$lib"
 done
 i=0
@@ -95,6 +128,23 @@ modprobe -d "$kroot" -S "$kver" --show-depends vivid | awk '/^insmod/{print $2}'
   esac
 done
 ls "$ird"/modules/*vivid.ko >/dev/null 2>&1 || { echo "vm-test: vivid.ko not found in $pkg" >&2; exit 1; }
+# The USB serial link, loaded by guest-usb.sh once udevd runs: the dummy
+# host and device controllers, the ACM function and the g_serial gadget
+# (the device side, /dev/ttyGS0), and the host's CDC-ACM driver (/dev/ttyACM*).
+# usb_f_acm is asked for by name at run time, so it is listed before g_serial.
+i=0
+for m in dummy_hcd usb_f_acm g_serial cdc_acm; do
+  modprobe -d "$kroot" -S "$kver" --show-depends "$m" | awk '/^insmod/{print $2}'
+done | awk '!seen[$0]++' | while read -r ko; do
+  i=$((i + 1))
+  name=$(basename "$ko")
+  case "$ko" in
+    *.xz) xz -dc "$ko" >"$ird/modules-usb/$(printf %02d $i)-${name%.xz}" ;;
+    *.zst) zstd -dqc "$ko" >"$ird/modules-usb/$(printf %02d $i)-${name%.zst}" ;;
+    *) cp "$ko" "$ird/modules-usb/$(printf %02d $i)-$name" ;;
+  esac
+done
+ls "$ird"/modules-usb/*g_serial.ko >/dev/null 2>&1 || { echo "vm-test: g_serial.ko not found in $pkg" >&2; exit 1; }
 # One capture node, one webcam input: the camera the tests drive.
 vivid_opts="n_devs=1 node_types=0x1 num_inputs=1 input_types=0x0"
 cat >"$ird/init" <<EOF
@@ -114,6 +164,7 @@ export HOME=/tmp RUST_BACKTRACE=1 REFL_VIVID_REPLUG=/bin/vivid-replug
 /tests/vivid --test-threads=1 --nocapture $*
 echo "vm: vivid tests exit=\$?"
 sh /tests/capture.sh
+sh /tests/usb.sh
 poweroff -f
 EOF
 cat >"$ird/bin/vivid-replug" <<EOF
@@ -165,3 +216,10 @@ if [ "$capture_status" != 0 ]; then
   exit 1
 fi
 echo "vm-test: hardware capture passed with vivid and the emulated MCU" >&2
+usb_status=$(sed -n 's/.*vm: usb exit=\([0-9]*\).*/\1/p' "$log" | tr -d '\r' | tail -1)
+if [ "$usb_status" != 0 ]; then
+  echo "vm-test: FAILED: the capture through udev and the USB serial gadget failed (exit ${usb_status:-none}); see $log" >&2
+  tail -40 "$log" >&2
+  exit 1
+fi
+echo "vm-test: capture passed through udevd's links and the kernel's CDC-ACM driver (USB gadget)" >&2

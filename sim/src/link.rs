@@ -175,6 +175,38 @@ impl Pty {
     }
 }
 
+/// Open an existing tty (a USB gadget's `/dev/ttyGS0`, the device side of
+/// the serial link a real rig's microcontroller enumerates as) for the
+/// emulator: raw, 8-bit clean, non-blocking, not the controlling terminal.
+pub fn open_tty(path: &Path) -> io::Result<PtyMaster> {
+    use nix::sys::termios::{SetArg, cfmakeraw, tcgetattr, tcsetattr};
+    use std::os::unix::fs::OpenOptionsExt;
+    let f = std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .custom_flags(libc::O_NOCTTY | libc::O_NONBLOCK)
+        .open(path)
+        .map_err(|e| io::Error::new(e.kind(), format!("cannot open {}: {e}", path.display())))?;
+    let fd = OwnedFd::from(f);
+    let mut t = tcgetattr(&fd).map_err(io::Error::from)?;
+    cfmakeraw(&mut t);
+    tcsetattr(&fd, SetArg::TCSANOW, &t).map_err(io::Error::from)?;
+    // SAFETY: `fd` is an open descriptor owned by the OwnedFd that the
+    // AsyncFd takes over; it stays open and unchanged until dropped.
+    let fd = unsafe { AsyncFd::register(fd) }.map_err(|e| e.into_parts().1)?;
+    Ok(PtyMaster { fd })
+}
+
+impl PtyMaster {
+    /// Whether the tty has hung up (its reads would end at once).
+    fn hung_up(&self) -> bool {
+        let mut p = libc::pollfd { fd: self.fd.get_ref().as_raw_fd(), events: libc::POLLIN, revents: 0 };
+        // SAFETY: poll on one pollfd we own, with no wait.
+        let n = unsafe { libc::poll(&mut p, 1, 0) };
+        n > 0 && p.revents & libc::POLLHUP != 0
+    }
+}
+
 fn set_nonblocking(fd: &OwnedFd) -> io::Result<()> {
     // SAFETY: fcntl on a file descriptor we own; no memory is passed.
     let flags = unsafe { libc::fcntl(fd.as_raw_fd(), libc::F_GETFL) };
@@ -295,6 +327,53 @@ impl SimMcu {
             }
         });
         Ok(Self { world, stats, current_path, link_path, shutdown: tx, task: Some(task) })
+    }
+
+    /// Start the emulator on an existing tty `path` (`open_tty`), as the
+    /// microcontroller's side of a real serial link: the host opens the
+    /// other side (for a USB gadget, the `/dev/ttyACM*` the kernel's
+    /// CDC-ACM driver makes). When the device hangs up (a USB gadget's
+    /// does when it is unplugged: its reads end) the board has lost its
+    /// power, as a bus-powered one does: it is reset (LEDs off, position
+    /// lost) and waits for the device to come back, then boots again.
+    pub async fn spawn_device(cfg: McuConfig, faults: FaultSpec, world: World, path: &Path) -> io::Result<Self> {
+        let (tx, mut rx) = watch::channel(false);
+        let stats = Arc::new(Mutex::new(McuStats::default()));
+        let dev = open_tty(path)?;
+        let (stats2, world2, path2) = (stats.clone(), world.clone(), path.to_path_buf());
+        let task = tokio::spawn(async move {
+            let mut lf = LinkFaults::new(faults);
+            let (mut mcu, mut boot) = Mcu::power_up(cfg, world2, lf.spec.seed, Instant::now());
+            let mut dev = dev;
+            loop {
+                // A hung-up tty may refuse the boot message: it is lost
+                // as on a wire, and the host's driver does without it.
+                let _ = send(&mut dev, &mut lf, vec![boot]).await;
+                match serve(&mut mcu, &mut dev, &mut lf, &mut rx, &stats2).await {
+                    Ok(LinkEnd::Shutdown) => return Ok(()),
+                    Ok(LinkEnd::PeerClosed | LinkEnd::Disconnect) | Err(_) => {}
+                }
+                drop(dev);
+                boot = mcu.reset(Instant::now());
+                tracing::info!("{} hung up: the board is reset and waits for it", path2.display());
+                dev = loop {
+                    tokio::select! {
+                        _ = tokio::time::sleep(Duration::from_millis(50)) => {}
+                        _ = rx.changed() => return Ok(()),
+                    }
+                    // The old node can linger a moment: a hung-up tty's
+                    // reads end at once, so only a fresh one is kept.
+                    if let Ok(d) = open_tty(&path2)
+                        && !d.hung_up()
+                    {
+                        break d;
+                    }
+                };
+                tracing::info!("{} is back", path2.display());
+            }
+        });
+        let current_path = Arc::new(Mutex::new(Some(path.to_path_buf())));
+        Ok(Self { world, stats, current_path, link_path: None, shutdown: tx, task: Some(task) })
     }
 
     /// Start the emulator on an in-memory duplex; returns the host's end.

@@ -169,14 +169,20 @@ enum Cmd {
         #[command(subcommand)]
         which: BenchCmd,
     },
-    /// Start the emulated rig microcontroller on a pseudo-terminal and print its device path.
+    /// Start the emulated rig microcontroller on a pseudo-terminal (or on
+    /// a serial device with --device) and print its device path.
     SimMcu {
         /// Faults to inject (see `capture --help`).
         #[arg(long, default_value = "")]
         faults: String,
         /// Also maintain a stable symlink to the device here.
-        #[arg(long)]
+        #[arg(long, conflicts_with = "device")]
         link: Option<std::path::PathBuf>,
+        /// Answer on this existing tty instead of a pseudo-terminal: the
+        /// device side of a real serial link, e.g. a USB gadget's
+        /// /dev/ttyGS0 (scripts/vm-test.sh).
+        #[arg(long, value_name = "TTY")]
+        device: Option<std::path::PathBuf>,
         /// Mechanical time scale (1 = real time).
         #[arg(long, default_value_t = 1.0)]
         time_scale: f64,
@@ -555,10 +561,13 @@ fn main() -> ExitCode {
                     tokio::task::block_in_place(|| assess::bench::synthesis(&sample, points, steps, &modes, clusters))
                 }
             },
-            Cmd::SimMcu { faults, link, time_scale } => {
+            Cmd::SimMcu { faults, link, device, time_scale } => {
                 let spec = sim::FaultSpec::parse(&faults).map_err(|e| cli::usage(anyhow::anyhow!("--faults: {e}")))?;
                 let cfg = sim::McuConfig::for_geometry(&setup::RigGeometry::default(), time_scale);
-                let mcu = sim::SimMcu::spawn_pty(cfg, spec, sim::World::new(), link).await?;
+                let mcu = match device {
+                    Some(d) => sim::SimMcu::spawn_device(cfg, spec, sim::World::new(), &d).await?,
+                    None => sim::SimMcu::spawn_pty(cfg, spec, sim::World::new(), link).await?,
+                };
                 let path = mcu.device_path().ok_or_else(|| anyhow::anyhow!("the emulator has no device"))?;
                 println!("{}", path.display());
                 eprintln!("emulated rig MCU on {}; Ctrl-C to stop", path.display());
