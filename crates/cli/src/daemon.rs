@@ -139,8 +139,8 @@ pub fn start_job(d: &Arc<Daemon>, request: CaptureRequest) -> std::result::Resul
                 (crate::exit::code(e), Some(format!("{e:#}")))
             }
         };
-        *d2.job() = None;
-        sd_notify("STATUS=idle");
+        // The page's board first: a job started once the slot is free
+        // finds it already showing this one's end.
         if let Some(live) = d2.live.clone() {
             let dir = r.as_ref().ok().map(|s| s.dir.clone()).or(info.out.clone());
             live.ended(&info, dir.as_deref(), code, message);
@@ -148,6 +148,8 @@ pub fn start_job(d: &Arc<Daemon>, request: CaptureRequest) -> std::result::Resul
                 tokio::task::spawn_blocking(move || live.evaluate(&dir));
             }
         }
+        *d2.job() = None;
+        sd_notify("STATUS=idle");
         code
     });
     Ok(Job { events, exit })
@@ -231,10 +233,14 @@ pub async fn serve(socket: &Path, http: Option<Http>, mut stop: watch::Receiver<
     let runtime = socket.parent().unwrap_or(Path::new(".")).to_path_buf();
     let live = http.as_ref().map(|_| Arc::new(crate::web::Live::new(runtime.join("web"))));
     let daemon = Arc::new(Daemon { job: Mutex::new(None), live: live.clone() });
+    // The page's port is taken before the daemon says it is ready.
     let mut page = match (http, live) {
         (Some(h), Some(live)) => {
+            let listener = tokio::net::TcpListener::bind(h.addr)
+                .await
+                .with_context(|| format!("cannot listen for the web page on {}", h.addr))?;
             let (d, s) = (daemon.clone(), stop.clone());
-            Some(tokio::spawn(async move { crate::web::serve(h.addr, d, live, &runtime, h.modules, s).await }))
+            Some(tokio::spawn(async move { crate::web::serve(listener, d, live, &runtime, h.modules, s).await }))
         }
         _ => None,
     };

@@ -403,9 +403,9 @@ struct App {
     stop: watch::Receiver<bool>,
 }
 
-/// Serve the page on `addr` until `stop` turns true.
+/// Serve the page on `listener` until `stop` turns true.
 pub async fn serve(
-    addr: SocketAddr,
+    listener: tokio::net::TcpListener,
     daemon: Arc<Daemon>,
     live: Arc<Live>,
     token_dir: &Path,
@@ -415,13 +415,16 @@ pub async fn serve(
     let token = new_token()?;
     let token_path = token_dir.join(TOKEN_FILE);
     write_token(&token_path, &token)?;
-    let listener = tokio::net::TcpListener::bind(addr)
-        .await
-        .with_context(|| format!("cannot listen for the web page on {addr}"))?;
     let local = listener.local_addr()?;
     tracing::info!("web page on http://{local}/ ; token {token} (also in {})", token_path.display());
     match &modules {
-        Some(m) => tracing::info!("the page's 3D viewer uses three.js from {}", m.display()),
+        Some(m) if m.join("three/package.json").is_file() => {
+            tracing::info!("the page's 3D viewer uses three.js from {}", m.display())
+        }
+        Some(m) => tracing::warn!(
+            "{} holds no three.js (run `npm ci` there with web/package.json): the page works without its 3D viewer",
+            m.display()
+        ),
         None => tracing::warn!(
             "three.js not found (run `npm ci --prefix web`, or pass --web-modules): the page works without its 3D viewer"
         ),
