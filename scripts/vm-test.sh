@@ -209,17 +209,16 @@ if ! grep -aq "test result: ok" "$log" || grep -aq "test result: ok. 0 passed" "
   exit 1
 fi
 echo "vm-test: V4L2 tests passed against vivid" >&2
-capture_status=$(sed -n 's/.*vm: capture exit=\([0-9]*\).*/\1/p' "$log" | tr -d '\r' | tail -1)
-if [ "$capture_status" != 0 ]; then
-  echo "vm-test: FAILED: the hardware capture in the guest failed (exit ${capture_status:-none}); see $log" >&2
-  tail -40 "$log" >&2
-  exit 1
-fi
-echo "vm-test: hardware capture passed with vivid and the emulated MCU" >&2
-usb_status=$(sed -n 's/.*vm: usb exit=\([0-9]*\).*/\1/p' "$log" | tr -d '\r' | tail -1)
-if [ "$usb_status" != 0 ]; then
-  echo "vm-test: FAILED: the capture through udev and the USB serial gadget failed (exit ${usb_status:-none}); see $log" >&2
-  tail -40 "$log" >&2
-  exit 1
-fi
-echo "vm-test: capture passed through udevd's links and the kernel's CDC-ACM driver (USB gadget)" >&2
+# guest_part NAME WHAT: the guest script NAME printed "vm: NAME exit=0".
+guest_part() {
+  local status
+  status=$(sed -n "s/.*vm: $1 exit=\([0-9]*\).*/\1/p" "$log" | tr -d '\r' | tail -1)
+  if [ "$status" != 0 ]; then
+    echo "vm-test: FAILED: $2 failed in the guest (exit ${status:-none}); see $log" >&2
+    tail -40 "$log" >&2
+    exit 1
+  fi
+  echo "vm-test: $2 passed" >&2
+}
+guest_part capture "the hardware capture with vivid and the emulated MCU"
+guest_part usb "the capture through udevd's links and the kernel's CDC-ACM driver (USB gadget), unplugged and replugged"

@@ -22,13 +22,14 @@ set -- $ids
 [ $# = 2 ] || fail "no USB ids for the MCU in 70-reflectometer.rules"
 vendor=$1
 product=$2
+gadget_ids="idVendor=0x$vendor idProduct=0x$product iProduct=reflectometer-mcu"
 mkdir -p /run/udev
 /lib/systemd/systemd-udevd --daemon || fail "udevd did not start"
 udevadm trigger --action=add
 udevadm settle --timeout=60
 for m in /modules-usb/*.ko; do
   case "$m" in
-    *g_serial.ko) insmod "$m" idVendor=0x$vendor idProduct=0x$product iProduct=reflectometer-mcu ;;
+    *g_serial.ko) insmod "$m" $gadget_ids ;;
     *) insmod "$m" ;;
   esac || fail "insmod $m"
 done
@@ -68,27 +69,36 @@ echo "vm: capture through the kernel's USB serial driver stored $n shots; $(link
 # and end with the clean run's frames.
 t() { cut -d' ' -f1 /proc/uptime; }
 gadget=$(ls /modules-usb/*g_serial.ko)
-capture --rig $rig --calib-dir $calib --sample vivid-bars --out /tmp/unplug $settings >/tmp/unplug.log 2>&1 &
-cap=$!
-i=0
-while [ "$(shots /tmp/unplug 2>/dev/null | wc -l)" -lt 8 ]; do
-  i=$((i + 1))
-  [ $i -lt 600 ] || fail "the capture to unplug took no frames: $(tail -5 /tmp/unplug.log)"
-  sleep 0.1
-done
+# start_capture NAME: a capture into /tmp/NAME in the background ($cap),
+# returning once it has stored 8 shots.
+start_capture() {
+  capture --rig $rig --calib-dir $calib --sample vivid-bars --out "/tmp/$1" $settings >"/tmp/$1.log" 2>&1 &
+  cap=$!
+  local i=0
+  while [ "$(shots "/tmp/$1" 2>/dev/null | wc -l)" -lt 8 ]; do
+    i=$((i + 1))
+    [ $i -lt 600 ] || fail "the capture into /tmp/$1 took no frames: $(tail -5 "/tmp/$1.log")"
+    sleep 0.1
+  done
+}
+# plug: load the gadget again and wait for its udev link.
+plug() {
+  insmod "$gadget" $gadget_ids || fail "insmod g_serial again"
+  local i=0
+  while [ ! -e /dev/reflectometer/mcu ]; do
+    i=$((i + 1))
+    [ $i -lt 200 ] || fail "/dev/reflectometer/mcu did not come back"
+    sleep 0.05
+  done
+}
+start_capture unplug
 echo "vm: unplug at $(t) s, after $(shots /tmp/unplug | wc -l) shots: rmmod g_serial"
 rmmod g_serial || fail "rmmod g_serial"
 while [ -e /dev/reflectometer/mcu ]; do sleep 0.05; done
 echo "vm: node gone at $(t) s ($(ls /dev/ttyACM* 2>/dev/null | tr '\n' ' '))"
 sleep 3
-insmod "$gadget" idVendor=0x$vendor idProduct=0x$product iProduct=reflectometer-mcu || fail "insmod g_serial again"
 echo "vm: replugged at $(t) s"
-i=0
-while [ ! -e /dev/reflectometer/mcu ]; do
-  i=$((i + 1))
-  [ $i -lt 200 ] || fail "/dev/reflectometer/mcu did not come back"
-  sleep 0.05
-done
+plug
 echo "vm: node back at $(t) s: /dev/reflectometer/mcu -> $(readlink -f /dev/reflectometer/mcu)"
 wait $cap
 rc=$?
@@ -103,14 +113,7 @@ echo "vm: the unplugged capture recovered with the clean run's $n frames; $(link
 # An unplug that never ends: the capture gives up after the driver's
 # reconnect time (15 s, PROTOCOL.md), says why, and leaves a capture that
 # `--resume` finishes once the rig is back.
-capture --rig $rig --calib-dir $calib --sample vivid-bars --out /tmp/gone $settings >/tmp/gone.log 2>&1 &
-cap=$!
-i=0
-while [ "$(shots /tmp/gone 2>/dev/null | wc -l)" -lt 8 ]; do
-  i=$((i + 1))
-  [ $i -lt 600 ] || fail "the capture to abandon took no frames: $(tail -5 /tmp/gone.log)"
-  sleep 0.1
-done
+start_capture gone
 t0=$(t)
 rmmod g_serial || fail "rmmod g_serial"
 echo "vm: unplugged for good at $t0 s"
@@ -120,8 +123,7 @@ echo "vm: the capture gave up at $(t) s, exit $rc: $(grep -i "disappeared" /tmp/
 [ $rc != 0 ] || fail "a capture whose rig never came back succeeded"
 grep -q "did not come back within 15 s" /tmp/gone.log || fail "no clear message: $(tail -5 /tmp/gone.log)"
 grep -q '"status": *"interrupted"' /tmp/gone/capture.json || fail "the abandoned capture is not resumable: $(head -c 300 /tmp/gone/capture.json)"
-insmod "$gadget" idVendor=0x$vendor idProduct=0x$product iProduct=reflectometer-mcu || fail "insmod g_serial again"
-while [ ! -e /dev/reflectometer/mcu ]; do sleep 0.05; done
+plug
 capture --resume /tmp/gone --rig $rig --calib-dir $calib >/tmp/resume.log 2>&1 || fail "resume exited $?: $(tail -5 /tmp/resume.log)"
 [ "$(shots /tmp/gone)" = "$(shots /tmp/usbcap)" ] || fail "the resumed capture's frames differ from the clean run's"
 echo "vm: resumed once the rig was back: the clean run's $n frames"

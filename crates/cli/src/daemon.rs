@@ -262,7 +262,12 @@ pub async fn serve(socket: &Path, http: Option<Http>, mut stop: watch::Receiver<
                 Err(e) => break Err(anyhow!("accept on {}: {e}", socket.display())),
             },
             _ = ping.tick() => if watchdog.is_some() { sd_notify("WATCHDOG=1") },
-            r = async { page.as_mut().expect("guarded").await }, if page.is_some() => {
+            r = async {
+                match page.as_mut() {
+                    Some(p) => p.await,
+                    None => std::future::pending().await,
+                }
+            } => {
                 page = None;
                 match r {
                     Ok(Ok(())) => {}

@@ -116,7 +116,8 @@ pub struct Live {
     board: Mutex<Board>,
     started: Mutex<Instant>,
     changed: watch::Sender<u64>,
-    preview: Mutex<Option<Arc<Vec<u8>>>>,
+    /// The latest camera view's PNG (cheap to clone for each request).
+    preview: Mutex<Option<axum::body::Bytes>>,
     preview_at: Mutex<Option<Instant>>,
     /// Where a finished capture's glTF is written (the runtime directory's
     /// `web/`).
@@ -190,7 +191,7 @@ impl Live {
         }
         match preview_png(f, PREVIEW_PX) {
             Ok((png, gain)) => {
-                *lock(&self.preview) = Some(Arc::new(png));
+                *lock(&self.preview) = Some(png.into());
                 self.update(|b| {
                     b.frame_seq += 1;
                     b.frame_gain = gain;
@@ -431,9 +432,9 @@ pub async fn serve(
     }
     let app = App { daemon, live, token: Arc::new(token), modules, stop: stop.clone() };
     let router = Router::new()
-        .route("/", get(index))
-        .route("/app.js", get(app_js))
-        .route("/viewer.js", get(viewer_js))
+        .route("/", get(|| async { with_type("text/html; charset=utf-8", INDEX_HTML) }))
+        .route("/app.js", get(|| async { with_type(JS, APP_JS) }))
+        .route("/viewer.js", get(|| async { with_type(JS, VIEWER_JS) }))
         .route("/api/state", get(state))
         .route("/api/events", get(events))
         .route("/api/frame.png", get(frame_png))
@@ -457,24 +458,13 @@ pub async fn serve(
 const INDEX_HTML: &str = include_str!("../web/index.html");
 const APP_JS: &str = include_str!("../web/app.js");
 const VIEWER_JS: &str = include_str!("../web/viewer.js");
+const JS: &str = "text/javascript; charset=utf-8";
 
 fn with_type(ct: &'static str, body: impl IntoResponse) -> Response {
     let mut r = body.into_response();
     r.headers_mut().insert(header::CONTENT_TYPE, HeaderValue::from_static(ct));
     r.headers_mut().insert(header::CACHE_CONTROL, HeaderValue::from_static("no-store"));
     r
-}
-
-async fn index() -> Response {
-    with_type("text/html; charset=utf-8", INDEX_HTML)
-}
-
-async fn app_js() -> Response {
-    with_type("text/javascript; charset=utf-8", APP_JS)
-}
-
-async fn viewer_js() -> Response {
-    with_type("text/javascript; charset=utf-8", VIEWER_JS)
 }
 
 async fn state(State(app): State<App>) -> Response {
@@ -501,7 +491,7 @@ async fn events(State(app): State<App>) -> Response {
 
 async fn frame_png(State(app): State<App>) -> Response {
     match lock(&app.live.preview).clone() {
-        Some(png) => with_type("image/png", png.as_ref().clone()),
+        Some(png) => with_type("image/png", png),
         None => (StatusCode::NOT_FOUND, "no frame yet").into_response(),
     }
 }
@@ -643,7 +633,7 @@ async fn cancel(State(app): State<App>, ConnectInfo(from): ConnectInfo<SocketAdd
 
 fn content_type(name: &str) -> &'static str {
     match name.rsplit('.').next().unwrap_or("") {
-        "js" | "mjs" => "text/javascript; charset=utf-8",
+        "js" | "mjs" => JS,
         "json" => "application/json",
         "gltf" => "model/gltf+json",
         "png" => "image/png",
