@@ -14,7 +14,8 @@ have() { dpkg -s "$1" >/dev/null 2>&1; }
 # The formats tier (scripts/formats-test.sh): OpenImageIO's oiiotool, and
 # node with npm for the Khronos glTF validator.
 # The browser tier (scripts/web-test.sh): Debian's chromium.
-for p in build-essential pkg-config libclang-dev qemu-system-x86 busybox-static cpio kmod xz-utils openimageio-tools chromium; do
+# The systemd tier (scripts/vm-systemd-test.sh): mmdebstrap for its guest's root.
+for p in build-essential pkg-config libclang-dev qemu-system-x86 busybox-static cpio kmod xz-utils openimageio-tools chromium mmdebstrap; do
   have "$p" || need_pkgs+=("$p")
 done
 if ! command -v npm >/dev/null 2>&1; then

@@ -19,6 +19,8 @@ bash scripts/formats-test.sh
 bash scripts/web-test.sh
 # The V4L2 tests (not a `cargo test` target: this kernel has no V4L2) in a QEMU guest.
 bash scripts/vm-test.sh
+# The daemon under systemd (the shipped unit) in a QEMU guest booted with systemd.
+bash scripts/vm-systemd-test.sh
 # The shipped systemd unit, checked against the freshly built daemon.
 cargo build --quiet --bin refl
 if command -v systemd-analyze >/dev/null 2>&1; then

@@ -35,22 +35,8 @@ if [ ! -x "$busybox" ] || ldd "$busybox" >/dev/null 2>&1; then
 fi
 
 # 1. Debian's current kernel package, unpacked once into target/vm.
-pkg=$(apt-cache depends linux-image-amd64 2>/dev/null | awk '/Depends: linux-image-[0-9]/ && !found {print $2; found = 1}')
-if [ -z "$pkg" ]; then
-  echo "vm-test: apt does not know linux-image-amd64; run 'apt-get update' (scripts/setup.sh does)" >&2
-  exit 1
-fi
-kroot="$vm/$pkg"
-if [ ! -d "$kroot/boot" ]; then
-  rm -rf "$kroot.tmp" && mkdir -p "$kroot.tmp"
-  (cd "$kroot.tmp" && apt-get download "$pkg" >/dev/null 2>&1) || {
-    echo "vm-test: could not download $pkg" >&2; exit 1; }
-  dpkg-deb -x "$kroot.tmp"/*.deb "$kroot.tmp/root"
-  mv "$kroot.tmp/root" "$kroot" && rm -rf "$kroot.tmp"
-fi
-kver=$(ls "$kroot/lib/modules")
-[ -f "$kroot/lib/modules/$kver/modules.dep" ] || depmod -b "$kroot" "$kver"
-kernel="$kroot/boot/vmlinuz-$kver"
+. "$root/scripts/vm/kernel.sh"
+vm_kernel "$vm"
 
 # 2. The test binary, built for this machine (the guest runs the same
 #    x86_64 code with this machine's shared libraries copied in).

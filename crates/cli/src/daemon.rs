@@ -131,7 +131,7 @@ pub fn start_job(d: &Arc<Daemon>, request: CaptureRequest) -> std::result::Resul
         if let Some(live) = d2.live.clone() {
             rep = rep.frames_to(move |f| live.frame(f));
         }
-        let r = capture::run(request, &mut rep, cancel_rx).await;
+        let r = capture::run(request, &mut rep, cancel_rx).await.map_err(for_the_service);
         let (code, message) = match &r {
             Ok(_) => (0, None),
             Err(e) => {
@@ -153,6 +153,25 @@ pub fn start_job(d: &Arc<Daemon>, request: CaptureRequest) -> std::result::Resul
         code
     });
     Ok(Job { events, exit })
+}
+
+/// A capture directory the daemon's user may not write: the operator's
+/// `--out` (a home directory, say) is to change, and the message says so
+/// and where the daemon may write.
+fn for_the_service(e: anyhow::Error) -> anyhow::Error {
+    let denied = e.chain().any(|c| {
+        matches!(c.downcast_ref::<store::StoreError>(),
+            Some(store::StoreError::Io { cause, .. }) if cause.kind() == std::io::ErrorKind::PermissionDenied)
+    });
+    if !denied {
+        return e;
+    }
+    let user = std::env::var("USER").unwrap_or_else(|_| "the daemon's user".into());
+    let data = crate::paths::data_dir().map_or("its data directory".into(), |d| d.display().to_string());
+    crate::usage(anyhow!(
+        "{e:#}: the capture daemon writes the capture as {user}; choose an --out it may write (such as \
+         {data}/captures/NAME), or run this capture without the daemon (--no-daemon)"
+    ))
 }
 
 /// Interrupt the running job, as Ctrl-C would; false when none runs.
@@ -355,14 +374,23 @@ async fn handle(stream: UnixStream, daemon: Arc<Daemon>) -> Result<()> {
     Ok(())
 }
 
-/// A connection to a running daemon, if one answers.
-pub async fn connect() -> Option<(PathBuf, UnixStream)> {
+/// A connection to a running daemon, if one answers. A daemon this user
+/// may not reach (not in the service's group) is an error: running the
+/// capture in-process beside it would fight it for the rig.
+pub async fn connect() -> Result<Option<(PathBuf, UnixStream)>> {
     for p in client_sockets() {
-        if let Ok(s) = UnixStream::connect(&p).await {
-            return Some((p, s));
+        match UnixStream::connect(&p).await {
+            Ok(s) => return Ok(Some((p, s))),
+            Err(e) if e.kind() == std::io::ErrorKind::PermissionDenied => bail!(
+                "the capture daemon's socket {} is not open to you ({e}): ask for the service's group (`sudo \
+                 usermod -aG reflectometer $USER`, then log in again), or run without the daemon (--no-daemon) when \
+                 no service drives the rig",
+                p.display()
+            ),
+            Err(_) => {}
         }
     }
-    None
+    Ok(None)
 }
 
 /// Make the request's paths absolute (the daemon has another working
@@ -454,4 +482,27 @@ pub async fn ask(socket: &Path, req: &Request) -> Result<serde_json::Value> {
     let mut lines = BufReader::new(r).lines();
     let l = lines.next_line().await?.ok_or_else(|| anyhow!("the daemon closed the connection"))?;
     Ok(serde_json::from_str(&l)?)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn io_error(kind: std::io::ErrorKind) -> anyhow::Error {
+        let cause = std::io::Error::from(kind);
+        anyhow::Error::new(store::StoreError::Io { what: "creating", path: "/home/alice/mine".into(), cause })
+            .context("starting the capture")
+    }
+
+    #[test]
+    fn a_directory_the_daemon_may_not_write_is_the_operators_to_change() {
+        let e = for_the_service(io_error(std::io::ErrorKind::PermissionDenied));
+        assert_eq!(crate::exit::code(&e), crate::exit::USAGE);
+        let m = format!("{e:#}");
+        assert!(m.contains("/home/alice/mine") && m.contains("--out") && m.contains("--no-daemon"), "{m}");
+        // Other failures keep their own message and code.
+        let e = for_the_service(io_error(std::io::ErrorKind::Other));
+        assert_eq!(crate::exit::code(&e), crate::exit::FAILED);
+        assert!(!format!("{e:#}").contains("--no-daemon"));
+    }
 }

@@ -26,8 +26,8 @@ const N: usize = THETA_H * THETA_D * PHI_D;
 pub enum MerlError {
     #[error("{0}")]
     Format(String),
-    #[error("{path}: {source}")]
-    Io { path: String, source: std::io::Error },
+    #[error("{path}: {cause}")]
+    Io { path: String, cause: std::io::Error },
 }
 
 /// A MERL measurement, evaluable as a BRDF.
@@ -71,8 +71,11 @@ fn rotate_y(v: Vec3, a: f32) -> Vec3 {
 
 impl MerlBrdf {
     pub fn read(path: &Path) -> Result<Self, MerlError> {
-        let b = std::fs::read(path).map_err(|e| MerlError::Io { path: path.display().to_string(), source: e })?;
-        Self::parse(&b)
+        let b = std::fs::read(path).map_err(|e| MerlError::Io { path: path.display().to_string(), cause: e })?;
+        Self::parse(&b).map_err(|e| match e {
+            MerlError::Format(m) => MerlError::Format(format!("{}: {m}", path.display())),
+            e => e,
+        })
     }
 
     pub fn parse(b: &[u8]) -> Result<Self, MerlError> {

@@ -41,8 +41,8 @@ use crate::view::{MaterialView, ModelChoice};
 pub enum RglError {
     #[error("{0}")]
     Format(String),
-    #[error("{path}: {source}")]
-    Io { path: String, source: std::io::Error },
+    #[error("{path}: {cause}")]
+    Io { path: String, cause: std::io::Error },
 }
 
 fn bad(msg: impl Into<String>) -> RglError {
@@ -251,8 +251,11 @@ fn field<'a>(fields: &'a [Field], name: &str) -> Result<&'a Field, RglError> {
 
 impl RglBrdf {
     pub fn read(path: &Path) -> Result<Self, RglError> {
-        let bytes = std::fs::read(path).map_err(|e| RglError::Io { path: path.display().to_string(), source: e })?;
-        Self::parse(&bytes)
+        let bytes = std::fs::read(path).map_err(|e| RglError::Io { path: path.display().to_string(), cause: e })?;
+        Self::parse(&bytes).map_err(|e| match e {
+            RglError::Format(m) => RglError::Format(format!("{}: {m}", path.display())),
+            e => e,
+        })
     }
 
     pub fn parse(bytes: &[u8]) -> Result<Self, RglError> {

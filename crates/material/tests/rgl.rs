@@ -72,6 +72,24 @@ fn malformed_files_are_refused_with_a_reason() {
     assert!(RglBrdf::parse(&no_rgb).unwrap_err().to_string().contains("theta_i"));
 }
 
+/// A file that is missing or not a tensor file is named once in the
+/// message, with the reason once (the error has no separate source that a
+/// printed chain would repeat).
+#[test]
+fn a_file_that_cannot_be_read_is_named_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let missing = dir.path().join("missing.bsdf");
+    let e = RglBrdf::read(&missing).unwrap_err();
+    let m = e.to_string();
+    assert!(std::error::Error::source(&e).is_none(), "{e:?}");
+    assert_eq!(m.matches("missing.bsdf").count(), 1, "{m}");
+    assert_eq!(m.matches("os error").count(), 1, "{m}");
+    let junk = dir.path().join("junk.bsdf");
+    std::fs::write(&junk, b"junk").unwrap();
+    let m = RglBrdf::read(&junk).unwrap_err().to_string();
+    assert!(m.starts_with(&format!("{}: ", junk.display())), "{m}");
+}
+
 proptest! {
     #![proptest_config(ProptestConfig { cases: 2000, ..ProptestConfig::default() })]
 

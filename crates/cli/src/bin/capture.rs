@@ -174,7 +174,7 @@ fn main() -> ExitCode {
             stop_after: args.stop_after,
         };
         if !args.no_daemon {
-            if let Some((socket, stream)) = cli::daemon::connect().await {
+            if let Some((socket, stream)) = cli::daemon::connect().await? {
                 rep.stage("capture", format!("handing the job to the daemon on {}", socket.display()));
                 return cli::daemon::capture_via(&socket, stream, req, &mut rep, stop).await;
             }

@@ -319,10 +319,10 @@ fn import(rgl: bool, a: &ImportArgs) -> anyhow::Result<()> {
     }
     let name = file.file_stem().map_or("imported".into(), |s| s.to_string_lossy().into_owned());
     let (m, summary) = if rgl {
-        let b = material::rgl::RglBrdf::read(file).with_context(|| file.display().to_string())?;
+        let b = material::rgl::RglBrdf::read(file)?;
         tokio::task::block_in_place(|| material::rgl::import(&b, &name, grid, width_mm))
     } else {
-        let b = material::merl::MerlBrdf::read(file).with_context(|| file.display().to_string())?;
+        let b = material::merl::MerlBrdf::read(file)?;
         tokio::task::block_in_place(|| material::merl::import(&b, &name, grid, width_mm))
     };
     material::write(out, &m, mode).with_context(|| format!("writing {}", out.display()))?;
@@ -408,7 +408,7 @@ fn main() -> ExitCode {
                 if status || cancel {
                     let socket = match socket {
                         Some(s) => s,
-                        None => cli::daemon::connect().await.map(|(p, _)| p).ok_or_else(|| {
+                        None => cli::daemon::connect().await?.map(|(p, _)| p).ok_or_else(|| {
                             anyhow::anyhow!(
                                 "no daemon is running (tried {})",
                                 cli::daemon::client_sockets()

@@ -1,0 +1,107 @@
+#!/usr/bin/env bash
+# The shipped systemd unit run for real: a QEMU guest (TCG, Debian's stock
+# kernel as in scripts/vm-test.sh) boots a small Debian root made by
+# mmdebstrap (this machine's release, minbase and systemd; built once into
+# target/vm) with systemd as PID 1, installs the freshly built binaries and
+# udev/reflectometer.service as udev/README.md says, and runs
+# scripts/vm/guest-systemd.sh: sd_notify readiness and watchdog as systemd
+# sees them, a capture by a user in the service's group through its socket,
+# a user outside it refused, `systemctl stop` mid-capture within the unit's
+# TimeoutStopSec leaving a resumable capture, the resume, and the web page
+# switched on as the guide says (its token readable by the group only).
+#
+# Usage: bash scripts/vm-systemd-test.sh
+# Needs: root (the guest's files keep their owners), qemu-system-x86,
+# mmdebstrap, cpio (scripts/setup.sh), and Debian's mirror the first time.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+root="$PWD"
+vm="$root/target/vm"
+mkdir -p "$vm"
+t0=$(date +%s)
+
+for tool in qemu-system-x86_64 cpio mmdebstrap strip; do
+  command -v "$tool" >/dev/null 2>&1 || PATH="$PATH:/usr/sbin:/sbin"
+  command -v "$tool" >/dev/null 2>&1 || { echo "vm-systemd-test: $tool is missing; run scripts/setup.sh" >&2; exit 1; }
+done
+if [ "$(id -u)" != 0 ]; then
+  echo "vm-systemd-test: needs root: the guest's root file system keeps its files' owners" >&2
+  exit 1
+fi
+
+# 1. The kernel.
+. "$root/scripts/vm/kernel.sh"
+vm_kernel "$vm"
+
+# 2. The guest's Debian root, once: this machine's release (so that the
+#    binaries built here find the same C library), minbase plus systemd as
+#    init, without documentation. Kept as an initramfs archive.
+suite=$(. /etc/os-release && echo "${VERSION_CODENAME:-}")
+[ -n "$suite" ] || { echo "vm-systemd-test: /etc/os-release names no release" >&2; exit 1; }
+base="$vm/systemd-root-$suite.cpio.gz"
+if [ ! -s "$base" ]; then
+  tmp="$vm/systemd-root.tmp"
+  rm -rf "$tmp"
+  echo "vm-systemd-test: building the guest's Debian $suite root with mmdebstrap (once)" >&2
+  mmdebstrap --quiet --variant=minbase --include=systemd-sysv,passwd \
+    --dpkgopt='path-exclude=/usr/share/doc/*' --dpkgopt='path-exclude=/usr/share/man/*' \
+    --dpkgopt='path-exclude=/usr/share/locale/*' "$suite" "$tmp" >"$vm/mmdebstrap.log" 2>&1 || {
+    echo "vm-systemd-test: mmdebstrap failed:" >&2; tail -20 "$vm/mmdebstrap.log" >&2; exit 1; }
+  (cd "$tmp" && find . | cpio -o -H newc --quiet | gzip -1) >"$base.tmp"
+  mv "$base.tmp" "$base"
+  rm -rf "$tmp"
+fi
+
+# 3. What the test adds: the binaries (debug information stripped), the
+#    unit, the simulated rig's calibration made here under the name the
+#    service will look for, the guest script and the unit that runs it once
+#    the system is up.
+cargo build --quiet -p reflectometer-cli --bin capture --bin refl
+ov="$vm/systemd-overlay"
+rm -rf "$ov"
+src="$ov/root/reflectometer"
+mkdir -p "$src" "$ov/tests" "$ov/etc/systemd/system/multi-user.target.wants"
+for b in refl capture; do strip --strip-debug -o "$src/$b" "$root/target/debug/$b"; done
+cp "$root/udev/reflectometer.service" "$src/"
+data="$vm/systemd-data"
+rm -rf "$data"
+REFLECTOMETER_DATA="$data" "$root/target/debug/capture" --no-daemon --calibrate all >"$vm/systemd-calib.log" 2>&1 \
+  || { echo "vm-systemd-test: the simulated rig's calibration failed:" >&2; tail -20 "$vm/systemd-calib.log" >&2; exit 1; }
+cp -r "$data/calibration" "$src/"
+cp "$root/scripts/vm/guest-systemd.sh" "$ov/tests/systemd.sh"
+cat >"$ov/etc/systemd/system/refl-vm-test.service" <<'EOF'
+[Unit]
+Description=reflectometer service test (scripts/vm/guest-systemd.sh)
+After=multi-user.target
+
+[Service]
+Type=oneshot
+ExecStart=/bin/bash /tests/systemd.sh
+StandardOutput=journal+console
+StandardError=journal+console
+EOF
+ln -s ../refl-vm-test.service "$ov/etc/systemd/system/multi-user.target.wants/refl-vm-test.service"
+# The kernel unpacks concatenated archives in order, the later over the earlier.
+(cd "$ov" && find . -mindepth 1 | cpio -o -H newc --quiet | gzip -1) | cat "$base" - >"$vm/systemd-initrd.gz"
+t1=$(date +%s)
+
+# 4. Boot it. The guest powers off when its script ends.
+log="$vm/systemd-console.log"
+echo "vm-systemd-test: booting Debian $suite with systemd under QEMU (TCG); console in $log" >&2
+set +e
+timeout 900 qemu-system-x86_64 -accel tcg -cpu max -m 2048 -smp 1 -nographic -no-reboot -nic none \
+  -kernel "$kernel" -initrd "$vm/systemd-initrd.gz" \
+  -append "console=ttyS0 panic=-1 quiet loglevel=4 rdinit=/sbin/init systemd.show_status=0 systemd.mask=serial-getty@ttyS0.service" \
+  >"$log" 2>&1
+qemu_rc=$?
+set -e
+t2=$(date +%s)
+grep -a "vm: " "$log" | sed 's/\r$//' >&2 || true
+echo "vm-systemd-test: prepared in $((t1 - t0)) s, guest ran $((t2 - t1)) s (qemu exit $qemu_rc)" >&2
+status=$(sed -n 's/.*vm: systemd exit=\([0-9]*\).*/\1/p' "$log" | tr -d '\r' | tail -1)
+if [ "$status" != 0 ]; then
+  echo "vm-systemd-test: FAILED: the service's test failed in the guest (exit ${status:-none}); see $log" >&2
+  tail -40 "$log" >&2
+  exit 1
+fi
+echo "vm-systemd-test: the daemon under systemd passed" >&2
