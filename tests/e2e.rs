@@ -53,6 +53,26 @@ fn capture_fits_renders_and_every_refl_tool_reads_it() {
         let e = ev["models"][m]["render_rel_rmse"].as_f64();
         assert!(e.is_some_and(|e| e.is_finite() && e > 0.0 && e < 2.0), "{m}: {e:?}");
     }
+    // Scored on the cells it shares with itself, a capture's NDF errors are
+    // its own; on those it shares with a capture of 3 gantry steps (which
+    // leaves cells between its steps unobserved), the observed-cell error
+    // is over fewer cells and the full-hemisphere error is untouched.
+    let same = lab.refl(&["eval", s(&dir), "--json", "--no-holdout", "--px", "8", "--observed-like", s(&dir)]);
+    assert_ok(&same, "refl eval --observed-like itself");
+    let same: serde_json::Value = serde_json::from_slice(&same.stdout).unwrap();
+    let ndf = |v: &serde_json::Value, k: &str| v["models"]["synthesized"][k].as_f64().unwrap();
+    for k in ["ndf_rel_l2_observed", "ndf_rel_l2_full", "ndf_shape_observed"] {
+        assert_eq!(ndf(&same, k), ndf(&ev, k), "{k}");
+    }
+    assert!(same["ndf_observed_like"].as_str().is_some(), "{same}");
+    let o = lab.capture_cmd("satin", "short", 3).output().unwrap();
+    assert_ok(&o, "capture of 3 steps");
+    let fewer =
+        lab.refl(&["eval", s(&dir), "--json", "--no-holdout", "--px", "8", "--observed-like", s(&lab.path("short"))]);
+    assert_ok(&fewer, "refl eval --observed-like a shorter capture");
+    let fewer: serde_json::Value = serde_json::from_slice(&fewer.stdout).unwrap();
+    assert_eq!(ndf(&fewer, "ndf_rel_l2_full"), ndf(&ev, "ndf_rel_l2_full"));
+    assert_ne!(ndf(&fewer, "ndf_rel_l2_observed"), ndf(&ev, "ndf_rel_l2_observed"));
 
     let o = lab.refl(&["inspect", s(&dir), "--json"]);
     assert_ok(&o, "refl inspect");

@@ -31,9 +31,9 @@ use std::path::Path;
 use std::sync::Arc;
 use std::time::Instant;
 
-use anyhow::{Context, Result, anyhow};
+use anyhow::{Context, Result, anyhow, bail};
 use brdf::Brdf;
-use brdf::ndf::NdfTable;
+use brdf::ndf::{NdfTable, TableSet};
 use config::Quality;
 use material::{Material, MaterialView, ModelChoice, NdfKind, SvBrdf};
 use rayon::prelude::*;
@@ -157,6 +157,10 @@ pub struct Evaluation {
     /// score, the camera's and the point grid's resolution. Simulated
     /// captures only.
     pub render_resolution_floor: Option<f64>,
+    /// The other capture whose observed cells the NDF errors on observed
+    /// cells were also restricted to ([`EvalOptions::observed_like`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub ndf_observed_like: Option<String>,
 }
 
 #[derive(Clone, Debug)]
@@ -164,11 +168,18 @@ pub struct EvalOptions {
     pub render_px: u32,
     pub holdout: bool,
     pub max_ndf_points: usize,
+    /// Score the NDF errors on observed cells only on the cells that this
+    /// capture's fit and another's (a capture directory) both observed:
+    /// two rigs or settings see different sets of half vectors, and an
+    /// error over each one's own set mixes the sets' difficulty with the
+    /// fits' accuracy. The other capture must have the same point grid and
+    /// table grid.
+    pub observed_like: Option<std::path::PathBuf>,
 }
 
 impl Default for EvalOptions {
     fn default() -> Self {
-        Self { render_px: 128, holdout: true, max_ndf_points: 1024 }
+        Self { render_px: 128, holdout: true, max_ndf_points: 1024, observed_like: None }
     }
 }
 
@@ -271,7 +282,13 @@ impl TruthTables {
     }
 }
 
-fn ndf_errors(m: &Material, which: ModelChoice, truth: &TruthTables, footprint: bool) -> NdfErrors {
+fn ndf_errors(
+    m: &Material,
+    which: ModelChoice,
+    truth: &TruthTables,
+    footprint: bool,
+    also_observed: Option<&TableSet>,
+) -> NdfErrors {
     let set = match which {
         ModelChoice::Tabulated => m.ndf.as_ref(),
         ModelChoice::Partial => m.partial.as_ref().map(|pf| &pf.tables).or(m.ndf.as_ref()),
@@ -293,13 +310,14 @@ fn ndf_errors(m: &Material, which: ModelChoice, truth: &TruthTables, footprint: 
             let t = t.as_ref().filter(|t| t.grid() == grid)?;
             let est = set.get(p);
             let obs = observed_set.get(p);
+            let also = also_observed.map(|o| o.get(p));
             let mut x = [0.0f64; 7];
             for (k, (&a, &b)) in est.values().iter().zip(t.values()).enumerate() {
                 let w = grid.cos_measure(k / np) as f64;
                 let (a, b) = (a as f64, b as f64);
                 x[5] += w * (a - b) * (a - b);
                 x[6] += w * b * b;
-                if obs.coverage().get(k) {
+                if obs.coverage().get(k) && also.as_ref().is_none_or(|o| o.coverage().get(k)) {
                     x[0] += w * (a - b) * (a - b);
                     x[1] += w * b * b;
                     x[3] += w * a * b;
@@ -431,6 +449,29 @@ pub fn evaluate(dir: &Path, opts: &EvalOptions, rep: &mut dyn Progress) -> Resul
         ev.render_resolution_floor = render::rel_rmse(&pairs);
         renders
     });
+    // The other capture's observed cells, where asked.
+    let other = match &opts.observed_like {
+        Some(o) => {
+            let om = material::read(&o.join("material"))
+                .with_context(|| format!("--observed-like: {} has no fitted material", o.display()))?;
+            let tables = om.partial.map(|pf| pf.tables).or(om.ndf);
+            let ours = m.partial.as_ref().map(|pf| &pf.tables).or(m.ndf.as_ref());
+            let same = |a: &TableSet, b: &TableSet| a.grid() == b.grid() && a.len() == b.len();
+            match (tables, ours) {
+                (Some(t), Some(u)) if same(&t, u) => {
+                    ev.ndf_observed_like = Some(o.display().to_string());
+                    Some(t)
+                }
+                (Some(_), Some(_)) => bail!(
+                    "--observed-like: {} has another point grid or NDF table grid than {}",
+                    o.display(),
+                    dir.display()
+                ),
+                _ => bail!("--observed-like: {} or {} has no NDF tables", o.display(), dir.display()),
+            }
+        }
+        None => None,
+    };
     let truth_tables = truth.as_ref().and_then(|t| {
         rep.stage("eval", "the true NDFs at the scored points and over their footprints".to_string());
         TruthTables::new(&m, &info, t.as_ref(), opts.max_ndf_points)
@@ -461,12 +502,12 @@ pub fn evaluate(dir: &Path, opts: &EvalOptions, rep: &mut dyn Progress) -> Resul
                 }
             }
             if let Some(tt) = &truth_tables {
-                let e = ndf_errors(&m, choice, tt, false);
+                let e = ndf_errors(&m, choice, tt, false, other.as_ref());
                 score.ndf_rel_l2_observed = e.observed;
                 score.ndf_rel_l2_full = e.full;
                 score.ndf_shape_observed = e.shape_observed;
                 score.ndf_scale_observed = e.scale_observed;
-                let e = ndf_errors(&m, choice, tt, true);
+                let e = ndf_errors(&m, choice, tt, true, other.as_ref());
                 score.ndf_rel_l2_observed_footprint = e.observed;
                 score.ndf_rel_l2_full_footprint = e.full;
                 score.ndf_shape_observed_footprint = e.shape_observed;

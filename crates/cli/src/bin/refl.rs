@@ -45,6 +45,11 @@ enum Cmd {
         /// Skip the hold-out refit.
         #[arg(long)]
         no_holdout: bool,
+        /// Score the NDF on observed cells only where this capture and
+        /// capture DIR both observed (comparing two rigs or settings on the
+        /// same half vectors; same point and table grids).
+        #[arg(long, value_name = "DIR")]
+        observed_like: Option<std::path::PathBuf>,
     },
     /// Render a fitted material with one of its models to an image
     /// (`.exr`: linear radiance; otherwise PNG at automatic exposure).
@@ -367,13 +372,18 @@ fn main() -> ExitCode {
                 println!("{}", m.display());
                 Ok(())
             }
-            Cmd::Eval { dir, json, px, no_holdout } => {
+            Cmd::Eval { dir, json, px, no_holdout, observed_like } => {
                 let mut rep = cli::progress::Reporter::new(if json {
                     cli::progress::Mode::Silent
                 } else {
                     cli::progress::Mode::Plain
                 });
-                let opts = assess::eval::EvalOptions { render_px: px, holdout: !no_holdout, ..Default::default() };
+                let opts = assess::eval::EvalOptions {
+                    render_px: px,
+                    holdout: !no_holdout,
+                    observed_like,
+                    ..Default::default()
+                };
                 let ev = tokio::task::block_in_place(|| assess::eval::evaluate(&dir, &opts, &mut rep))?;
                 println!("{}", if json { serde_json::to_string(&ev)? } else { serde_json::to_string_pretty(&ev)? });
                 Ok(())
