@@ -159,17 +159,18 @@ pub fn start_job(d: &Arc<Daemon>, request: CaptureRequest) -> std::result::Resul
 /// `--out` (a home directory, say) is to change, and the message says so
 /// and where the daemon may write.
 fn for_the_service(e: anyhow::Error) -> anyhow::Error {
-    let denied = e.chain().any(|c| {
-        matches!(c.downcast_ref::<store::StoreError>(),
-            Some(store::StoreError::Io { cause, .. }) if cause.kind() == std::io::ErrorKind::PermissionDenied)
+    let denied = e.chain().find_map(|c| match c.downcast_ref::<store::StoreError>() {
+        Some(s @ store::StoreError::Io { source, .. }) if source.kind() == std::io::ErrorKind::PermissionDenied => {
+            Some(s)
+        }
+        _ => None,
     });
-    if !denied {
-        return e;
-    }
+    let Some(denied) = denied else { return e };
     let user = std::env::var("USER").unwrap_or_else(|_| "the daemon's user".into());
     let data = crate::paths::data_dir().map_or("its data directory".into(), |d| d.display().to_string());
+    // The store's error names its cause itself (`{denied}`, not the chain).
     crate::usage(anyhow!(
-        "{e:#}: the capture daemon writes the capture as {user}; choose an --out it may write (such as \
+        "{denied}: the capture daemon writes the capture as {user}; choose an --out it may write (such as \
          {data}/captures/NAME), or run this capture without the daemon (--no-daemon)"
     ))
 }
@@ -490,7 +491,7 @@ mod tests {
 
     fn io_error(kind: std::io::ErrorKind) -> anyhow::Error {
         let cause = std::io::Error::from(kind);
-        anyhow::Error::new(store::StoreError::Io { what: "creating", path: "/home/alice/mine".into(), cause })
+        anyhow::Error::new(store::StoreError::Io { what: "creating", path: "/home/alice/mine".into(), source: cause })
             .context("starting the capture")
     }
 
@@ -500,6 +501,7 @@ mod tests {
         assert_eq!(crate::exit::code(&e), crate::exit::USAGE);
         let m = format!("{e:#}");
         assert!(m.contains("/home/alice/mine") && m.contains("--out") && m.contains("--no-daemon"), "{m}");
+        assert_eq!(m.matches("ermission denied").count(), 1, "{m}");
         // Other failures keep their own message and code.
         let e = for_the_service(io_error(std::io::ErrorKind::Other));
         assert_eq!(crate::exit::code(&e), crate::exit::FAILED);

@@ -32,16 +32,16 @@ pub enum MaterialError {
     Malformed { path: String, reason: String },
     #[error("{path} is material format version {found}; this program reads version {MATERIAL_FORMAT_VERSION}")]
     Version { path: String, found: u32 },
-    #[error("{path}: {cause}")]
-    Io { path: String, cause: std::io::Error },
+    #[error("{path}: {source}")]
+    Io { path: String, source: std::io::Error },
 }
 
 fn malformed(path: &Path, reason: impl Into<String>) -> MaterialError {
     MaterialError::Malformed { path: path.display().to_string(), reason: reason.into() }
 }
 
-fn io(path: &Path, cause: std::io::Error) -> MaterialError {
-    MaterialError::Io { path: path.display().to_string(), cause }
+fn io(path: &Path, source: std::io::Error) -> MaterialError {
+    MaterialError::Io { path: path.display().to_string(), source }
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

@@ -10,7 +10,7 @@ use crate::StoreError;
 /// The error of an IO step on `path`, for `map_err`.
 fn io(what: &'static str, path: &Path) -> impl FnOnce(std::io::Error) -> StoreError {
     let path = path.display().to_string();
-    move |cause| StoreError::Io { what, path, cause }
+    move |source| StoreError::Io { what, path, source }
 }
 
 /// The calibrations of one rig, newest last by id.
