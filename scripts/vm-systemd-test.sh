@@ -11,8 +11,9 @@
 # switched on as the guide says (its token readable by the group only).
 #
 # Usage: bash scripts/vm-systemd-test.sh
-# Needs: root (the guest's files keep their owners), qemu-system-x86,
-# mmdebstrap, cpio (scripts/setup.sh), and Debian's mirror the first time.
+# Needs: root or password-less sudo (the guest's files keep their owners),
+# qemu-system-x86, mmdebstrap, cpio (scripts/setup.sh), and Debian's mirror
+# the first time.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 root="$PWD"
@@ -24,9 +25,13 @@ for tool in qemu-system-x86_64 cpio mmdebstrap strip; do
   command -v "$tool" >/dev/null 2>&1 || PATH="$PATH:/usr/sbin:/sbin"
   command -v "$tool" >/dev/null 2>&1 || { echo "vm-systemd-test: $tool is missing; run scripts/setup.sh" >&2; exit 1; }
 done
+# Building the guest's root needs root (its files keep their owners): as
+# root, or through sudo without a password.
+SUDO=""
 if [ "$(id -u)" != 0 ]; then
-  echo "vm-systemd-test: needs root: the guest's root file system keeps its files' owners" >&2
-  exit 1
+  if command -v sudo >/dev/null 2>&1 && sudo -n true 2>/dev/null; then SUDO="sudo -n"; else
+    echo "vm-systemd-test: needs root (or sudo) to build the guest's root file system" >&2; exit 1
+  fi
 fi
 
 # 1. The kernel.
@@ -41,15 +46,15 @@ suite=$(. /etc/os-release && echo "${VERSION_CODENAME:-}")
 base="$vm/systemd-root-$suite.cpio.gz"
 if [ ! -s "$base" ]; then
   tmp="$vm/systemd-root.tmp"
-  rm -rf "$tmp"
+  $SUDO rm -rf "$tmp"
   echo "vm-systemd-test: building the guest's Debian $suite root with mmdebstrap (once)" >&2
-  mmdebstrap --quiet --variant=minbase --include=systemd-sysv,passwd \
+  $SUDO mmdebstrap --quiet --variant=minbase --include=systemd-sysv,passwd \
     --dpkgopt='path-exclude=/usr/share/doc/*' --dpkgopt='path-exclude=/usr/share/man/*' \
     --dpkgopt='path-exclude=/usr/share/locale/*' "$suite" "$tmp" >"$vm/mmdebstrap.log" 2>&1 || {
     echo "vm-systemd-test: mmdebstrap failed:" >&2; tail -20 "$vm/mmdebstrap.log" >&2; exit 1; }
-  (cd "$tmp" && find . | cpio -o -H newc --quiet | gzip -1) >"$base.tmp"
+  (cd "$tmp" && $SUDO sh -c 'find . | cpio -o -H newc --quiet' | gzip -1) >"$base.tmp"
   mv "$base.tmp" "$base"
-  rm -rf "$tmp"
+  $SUDO rm -rf "$tmp"
 fi
 
 # 3. What the test adds: the binaries (debug information stripped), the
@@ -81,8 +86,9 @@ StandardOutput=journal+console
 StandardError=journal+console
 EOF
 ln -s ../refl-vm-test.service "$ov/etc/systemd/system/multi-user.target.wants/refl-vm-test.service"
-# The kernel unpacks concatenated archives in order, the later over the earlier.
-(cd "$ov" && find . -mindepth 1 | cpio -o -H newc --quiet | gzip -1) | cat "$base" - >"$vm/systemd-initrd.gz"
+# The kernel unpacks concatenated archives in order, the later over the
+# earlier; every file of this one is root's, whoever runs the script.
+(cd "$ov" && find . -mindepth 1 | cpio -o -H newc -R 0:0 --quiet | gzip -1) | cat "$base" - >"$vm/systemd-initrd.gz"
 t1=$(date +%s)
 
 # 4. Boot it. The guest powers off when its script ends.
