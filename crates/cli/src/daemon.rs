@@ -260,7 +260,8 @@ pub async fn serve(socket: &Path, http: Option<Http>, mut stop: watch::Receiver<
                 .await
                 .with_context(|| format!("cannot listen for the web page on {}", h.addr))?;
             let (d, s) = (daemon.clone(), stop.clone());
-            Some(tokio::spawn(async move { crate::web::serve(listener, d, live, &runtime, h.modules, s).await }))
+            let dir = runtime.clone();
+            Some(tokio::spawn(async move { crate::web::serve(listener, d, live, &dir, h.modules, s).await }))
         }
         _ => None,
     };
@@ -308,6 +309,14 @@ pub async fn serve(socket: &Path, http: Option<Http>, mut stop: watch::Receiver<
             }
             tokio::time::sleep(Duration::from_millis(100)).await;
         }
+    }
+    // The page shuts down gracefully (its event streams end on `stop`);
+    // a client that keeps a connection open must not keep the token file
+    // alive past the daemon, so it is removed here too once the page has
+    // had its moment.
+    if let Some(p) = page {
+        let _ = tokio::time::timeout(Duration::from_secs(2), p).await;
+        let _ = std::fs::remove_file(runtime.join(crate::web::TOKEN_FILE));
     }
     let _ = std::fs::remove_file(socket);
     result
