@@ -16,15 +16,10 @@
 # the first time.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-root="$PWD"
-vm="$root/target/vm"
-mkdir -p "$vm"
+me=vm-systemd-test root="$PWD" vm="$PWD/target/vm"
+. "$root/scripts/vm/common.sh"
 t0=$(date +%s)
-
-for tool in qemu-system-x86_64 cpio mmdebstrap strip; do
-  command -v "$tool" >/dev/null 2>&1 || PATH="$PATH:/usr/sbin:/sbin"
-  command -v "$tool" >/dev/null 2>&1 || { echo "vm-systemd-test: $tool is missing; run scripts/setup.sh" >&2; exit 1; }
-done
+vm_need qemu-system-x86_64 cpio mmdebstrap strip
 # Building the guest's root needs root (its files keep their owners): as
 # root, or through sudo without a password.
 SUDO=""
@@ -35,8 +30,7 @@ if [ "$(id -u)" != 0 ]; then
 fi
 
 # 1. The kernel.
-. "$root/scripts/vm/kernel.sh"
-vm_kernel "$vm"
+vm_kernel
 
 # 2. The guest's Debian root, once: this machine's release (so that the
 #    binaries built here find the same C library), minbase plus systemd as
@@ -94,20 +88,8 @@ t1=$(date +%s)
 # 4. Boot it. The guest powers off when its script ends.
 log="$vm/systemd-console.log"
 echo "vm-systemd-test: booting Debian $suite with systemd under QEMU (TCG); console in $log" >&2
-set +e
-timeout 900 qemu-system-x86_64 -accel tcg -cpu max -m 2048 -smp 1 -nographic -no-reboot -nic none \
-  -kernel "$kernel" -initrd "$vm/systemd-initrd.gz" \
-  -append "console=ttyS0 panic=-1 quiet loglevel=4 rdinit=/sbin/init systemd.show_status=0 systemd.mask=serial-getty@ttyS0.service" \
-  >"$log" 2>&1
-qemu_rc=$?
-set -e
+vm_boot "$vm/systemd-initrd.gz" "rdinit=/sbin/init systemd.show_status=0 systemd.mask=serial-getty@ttyS0.service" "$log"
 t2=$(date +%s)
 grep -a "vm: " "$log" | sed 's/\r$//' >&2 || true
 echo "vm-systemd-test: prepared in $((t1 - t0)) s, guest ran $((t2 - t1)) s (qemu exit $qemu_rc)" >&2
-status=$(sed -n 's/.*vm: systemd exit=\([0-9]*\).*/\1/p' "$log" | tr -d '\r' | tail -1)
-if [ "$status" != 0 ]; then
-  echo "vm-systemd-test: FAILED: the service's test failed in the guest (exit ${status:-none}); see $log" >&2
-  tail -40 "$log" >&2
-  exit 1
-fi
-echo "vm-systemd-test: the daemon under systemd passed" >&2
+vm_guest_part "$log" systemd "the daemon under systemd"

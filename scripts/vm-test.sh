@@ -20,23 +20,17 @@
 # Needs: qemu-system-x86, busybox-static, cpio, kmod (scripts/setup.sh).
 set -euo pipefail
 cd "$(dirname "$0")/.."
-root="$PWD"
-vm="$root/target/vm"
-mkdir -p "$vm"
+me=vm-test root="$PWD" vm="$PWD/target/vm"
+. "$root/scripts/vm/common.sh"
 t0=$(date +%s)
-
-for tool in qemu-system-x86_64 cpio depmod modprobe; do
-  command -v "$tool" >/dev/null 2>&1 || PATH="$PATH:/usr/sbin:/sbin"
-  command -v "$tool" >/dev/null 2>&1 || { echo "vm-test: $tool is missing; run scripts/setup.sh" >&2; exit 1; }
-done
+vm_need qemu-system-x86_64 cpio depmod modprobe
 busybox=/bin/busybox
 if [ ! -x "$busybox" ] || ldd "$busybox" >/dev/null 2>&1; then
   echo "vm-test: a static busybox is missing (Debian busybox-static); run scripts/setup.sh" >&2; exit 1
 fi
 
 # 1. Debian's current kernel package, unpacked once into target/vm.
-. "$root/scripts/vm/kernel.sh"
-vm_kernel "$vm"
+vm_kernel
 
 # 2. The test binary, built for this machine (the guest runs the same
 #    x86_64 code with this machine's shared libraries copied in).
@@ -166,12 +160,7 @@ t1=$(date +%s)
 # 4. Boot it. No KVM here: TCG. The guest powers off when the tests end.
 log="$vm/console.log"
 echo "vm-test: booting $pkg under QEMU (TCG) with vivid; console in $log" >&2
-set +e
-timeout 900 qemu-system-x86_64 -accel tcg -cpu max -m 2048 -smp 1 -nographic -no-reboot -nic none \
-  -kernel "$kernel" -initrd "$vm/initramfs.gz" \
-  -append "console=ttyS0 panic=-1 quiet loglevel=4 rdinit=/init" >"$log" 2>&1
-qemu_rc=$?
-set -e
+vm_boot "$vm/initramfs.gz" "rdinit=/init" "$log"
 t2=$(date +%s)
 grep -aE "vm:|^(test |running|test result|failures|----|thread|vivid|applied)|ERROR|WARN" "$log" | sed 's/\r$//' >&2 || true
 status=$(sed -n 's/.*vm: vivid tests exit=\([0-9]*\).*/\1/p' "$log" | tr -d '\r' | tail -1)
@@ -195,16 +184,5 @@ if ! grep -aq "test result: ok" "$log" || grep -aq "test result: ok. 0 passed" "
   exit 1
 fi
 echo "vm-test: V4L2 tests passed against vivid" >&2
-# guest_part NAME WHAT: the guest script NAME printed "vm: NAME exit=0".
-guest_part() {
-  local status
-  status=$(sed -n "s/.*vm: $1 exit=\([0-9]*\).*/\1/p" "$log" | tr -d '\r' | tail -1)
-  if [ "$status" != 0 ]; then
-    echo "vm-test: FAILED: $2 failed in the guest (exit ${status:-none}); see $log" >&2
-    tail -40 "$log" >&2
-    exit 1
-  fi
-  echo "vm-test: $2 passed" >&2
-}
-guest_part capture "the hardware capture with vivid and the emulated MCU"
-guest_part usb "the capture through udevd's links and the kernel's CDC-ACM driver (USB gadget), unplugged and replugged"
+vm_guest_part "$log" capture "the hardware capture with vivid and the emulated MCU"
+vm_guest_part "$log" usb "the capture through udevd's links and the kernel's CDC-ACM driver (USB gadget), unplugged and replugged"

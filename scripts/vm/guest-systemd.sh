@@ -26,12 +26,13 @@ fail() {
 }
 prop() { systemctl show -p "$1" --value reflectometer; }
 uptime_s() { cut -d' ' -f1 /proc/uptime; }
-# A small fast capture of the white sample, as user $1, into $caps/$2.
+# A small fast capture of the white sample as user $1 (in their home
+# directory), with the further arguments (--out, --steps).
 capture_as() {
-  user=$1 out=$2
-  shift 2
-  runuser -u "$user" -- capture --sample white --quality fast --grid 8 --camera-px 48 --no-fit \
-    --out "$caps/$out" "$@"
+  user=$1
+  shift
+  (cd "/home/$user" && runuser -u "$user" -- capture --sample white --quality fast --grid 8 --camera-px 48 \
+    --no-fit "$@")
 }
 say "booted by $(readlink -f /proc/1/exe) at $(uptime_s) s"
 
@@ -61,7 +62,7 @@ wd0=$(prop WatchdogTimestampMonotonic)
   || fail "socket: $(stat -c '%U %G %a' /run/reflectometer/daemon.sock)"
 
 # The operator's capture goes through the service (and is written by it).
-capture_as alice op-1 --steps 4 >/tmp/op-1.log 2>&1
+capture_as alice --out "$caps/op-1" --steps 4 >/tmp/op-1.log 2>&1
 rc=$?
 cat /tmp/op-1.log
 [ "$rc" = 0 ] || fail "the operator's capture exited $rc"
@@ -74,23 +75,21 @@ grep -q '"busy":null' /tmp/status.json || fail "status after the capture: $(cat 
 
 # A directory the service may not write (the operator's home) is refused
 # before anything is taken, and so is the default, beside the operator.
-(cd /home/alice && runuser -u alice -- capture --sample white --quality fast --grid 8 --camera-px 48 --no-fit \
-  --steps 4 --out /home/alice/mine) >/tmp/home.log 2>&1
+capture_as alice --steps 4 --out /home/alice/mine >/tmp/home.log 2>&1
 rc=$?
 cat /tmp/home.log
 [ "$rc" = 2 ] || fail "a capture into the operator's home exited $rc, not 2 (refused)"
 grep -q "the capture daemon writes the capture as reflectometer" /tmp/home.log \
   || fail "the refusal of the operator's home does not say why"
 [ ! -e /home/alice/mine ] || fail "the refused capture left /home/alice/mine"
-(cd /home/alice && runuser -u alice -- capture --sample white --quality fast --grid 8 --camera-px 48 --no-fit \
-  --steps 4) >/tmp/default.log 2>&1
+capture_as alice --steps 4 >/tmp/default.log 2>&1
 rc=$?
 cat /tmp/default.log
 [ "$rc" = 2 ] && grep -q -- "--out DIR" /tmp/default.log || fail "a capture without --out: exit $rc"
 say "into the operator's home, and with no --out: refused (exit 2), saying why"
 
 # A user outside the group is refused, and nothing runs in-process.
-capture_as bob out-1 --steps 4 >/tmp/out-1.log 2>&1
+capture_as bob --out "$caps/out-1" --steps 4 >/tmp/out-1.log 2>&1
 rc=$?
 cat /tmp/out-1.log
 [ "$rc" != 0 ] || fail "the outsider's capture was not refused"
@@ -112,7 +111,7 @@ say "watchdog: last ping at $((wd1 / 1000000)) s (first $((wd0 / 1000000)) s), p
 
 # systemctl stop mid-capture: honoured within TimeoutStopSec, the capture
 # left interrupted and resumable.
-capture_as alice op-2 --steps 16 >/tmp/op-2.log 2>&1 &
+capture_as alice --out "$caps/op-2" --steps 16 >/tmp/op-2.log 2>&1 &
 client=$!
 i=0
 while [ "$(cat "$caps/op-2/manifest.jsonl" 2>/dev/null | wc -l)" -lt 20 ]; do
