@@ -50,32 +50,10 @@ for capture in "$@"; do
     [ "$side" = base ] && b="$base"
     "$b/refl" fit "$dir" >"$dir.log" 2>&1 || { echo "refit-compare: $name: the $side build's fit failed ($dir.log)" >&2; exit 1; }
   done
-  python3 - "$name" "$out/$name.base" "$out/$name.new" <<'PY' || status=1
-import filecmp, json, os, sys
-name, a, b = sys.argv[1:]
-def timing(d):
-    return json.load(open(f"{d}/report.json"))["timings"]["fit_total_after_capture_s"]
-def untimed(o):
-    if isinstance(o, dict):
-        return {k: untimed(v) for k, v in o.items() if not (k.endswith("_s") or "seconds" in k)}
-    if isinstance(o, list):
-        return [untimed(v) for v in o]
-    return o
-files = sorted(set(os.listdir(f"{a}/material")) | set(os.listdir(f"{b}/material")))
-differ = []
-for f in files:
-    pa, pb = f"{a}/material/{f}", f"{b}/material/{f}"
-    if not (os.path.exists(pa) and os.path.exists(pb)):
-        differ.append(f)
-    elif f.endswith(".json"):
-        if untimed(json.load(open(pa))) != untimed(json.load(open(pb))):
-            differ.append(f)
-    elif not filecmp.cmp(pa, pb, shallow=False):
-        differ.append(f)
-ta, tb = timing(a), timing(b)
-verdict = "identical" if not differ else "DIFFERS: " + " ".join(differ)
-print(f"{name:24} base {ta:7.2f} s  new {tb:7.2f} s  ({tb / ta:.2f}x)  {len(files)} files {verdict}")
-sys.exit(1 if differ else 0)
-PY
+  ta="$(python3 -c 'import json, sys; print(json.load(open(sys.argv[1]))["timings"]["fit_total_after_capture_s"])' "$out/$name.base/report.json")"
+  tb="$(python3 -c 'import json, sys; print(json.load(open(sys.argv[1]))["timings"]["fit_total_after_capture_s"])' "$out/$name.new/report.json")"
+  same="$(python3 scripts/same-material.py "$out/$name.base/material" "$out/$name.new/material")" || status=1
+  python3 -c 'import sys; n, a, b, s = sys.argv[1:]; a, b = float(a), float(b); print(f"{n:24} base {a:7.2f} s  new {b:7.2f} s  ({b / a:.2f}x)  {s}")' \
+    "$name" "$ta" "$tb" "$same"
 done
 exit "$status"

@@ -3,7 +3,8 @@
 # tests (end-to-end runs of the binaries included), the firmware protocol's
 # no_std build, the Python examples, the exported formats in their
 # tools, the daemon's web page in a real browser, the V4L2 backend against
-# the kernel's vivid driver in a QEMU guest, and the daemon's systemd unit.
+# the kernel's vivid driver in a QEMU guest, the daemon's systemd unit, and
+# the fit spread over a Slurm cluster.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
@@ -21,6 +22,10 @@ bash scripts/web-test.sh
 bash scripts/vm-test.sh
 # The daemon under systemd (the shipped unit) in a QEMU guest booted with systemd.
 bash scripts/vm-systemd-test.sh
+# The fit in tiles on a real Slurm controller and node on loopback, and the
+# Kubernetes manifests that do the same.
+bash scripts/slurm-test.sh
+python3 tests/deploy/check_k8s.py
 # The shipped systemd unit, checked against the freshly built daemon.
 cargo build --quiet --bin refl
 if command -v systemd-analyze >/dev/null 2>&1; then

@@ -342,6 +342,62 @@ fn bad_input_is_refused_clearly_and_nothing_is_lost() {
     assert!(!lab.path("m").exists());
 }
 
+/// `material.json` less its timings (keys ending in `_s` or naming
+/// seconds), which two runs of one fit never share.
+fn untimed(v: serde_json::Value) -> serde_json::Value {
+    match v {
+        serde_json::Value::Object(o) => o
+            .into_iter()
+            .filter(|(k, _)| !(k.ends_with("_s") || k.contains("seconds")))
+            .map(|(k, v)| (k, untimed(v)))
+            .collect(),
+        serde_json::Value::Array(a) => a.into_iter().map(untimed).collect(),
+        v => v,
+    }
+}
+
+/// A fit spread over tiles (`refl fit --tile K/N` on each, in any order,
+/// then `--merge`) writes the material a whole `refl fit` writes, every
+/// file byte for byte but the timings; a merge before every tile is done
+/// names the missing ones and writes nothing; the merge removes the tiles.
+#[test]
+fn a_fit_in_tiles_merges_to_the_material_of_the_whole_fit() {
+    let lab = Lab::new();
+    assert_ok(&lab.capture("satin", "whole", &["--no-fit"]), "capture");
+    let tiled = lab.path("tiled");
+    std::fs::create_dir(&tiled).unwrap();
+    for f in ["capture.json", "manifest.jsonl"] {
+        std::fs::copy(lab.path("whole").join(f), tiled.join(f)).unwrap();
+    }
+    std::os::unix::fs::symlink(lab.path("whole/frames"), tiled.join("frames")).unwrap();
+    assert_ok(&lab.refl(&["fit", s(&lab.path("whole"))]), "whole fit");
+    let t = s(&tiled);
+    let o = lab.refl(&["fit", t, "--merge"]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("--tile"), "{}", stderr(&o));
+    for k in ["2/3", "0/3"] {
+        assert_ok(&lab.refl(&["fit", t, "--tile", k]), k);
+    }
+    let o = lab.refl(&["fit", t, "--merge"]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("tiles 1/3 of 3 are not finished"), "{}", stderr(&o));
+    assert!(!tiled.join("material").exists(), "nothing written before every tile is done");
+    let o = lab.refl(&["fit", t, "--tile", "5/3"]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert_ok(&lab.refl(&["fit", t, "--tile", "1/3"]), "1/3");
+    assert_ok(&lab.refl(&["fit", t, "--merge"]), "merge");
+    assert!(!tiled.join("tiles").exists(), "the merge removes its tiles");
+    let (a, b) = (lab.path("whole/material"), tiled.join("material"));
+    let mut names: Vec<String> =
+        std::fs::read_dir(&a).unwrap().map(|e| e.unwrap().file_name().into_string().unwrap()).collect();
+    names.sort();
+    assert!(names.len() >= MATERIAL_FILES.len(), "{names:?}");
+    let json = |d: &Path| untimed(serde_json::from_slice(&std::fs::read(d.join("material.json")).unwrap()).unwrap());
+    assert_eq!(json(&a), json(&b), "material.json differs beyond its timings");
+    let binary: Vec<&str> = names.iter().map(String::as_str).filter(|n| *n != "material.json").collect();
+    same_files(&a, &b, &binary);
+}
+
 #[test]
 fn kill_9_mid_capture_resumes_without_loss_to_the_same_material() {
     let lab = Lab::new();

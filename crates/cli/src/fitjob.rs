@@ -36,16 +36,33 @@ impl Drop for FitJob {
 impl FitJob {
     pub fn start(inputs: FitInputs, settings: FitSettings, stages: Stages) -> Self {
         let (tx, rx) = mpsc::channel::<FrameMsg>(32);
+        Self::spawn(Some(tx), move |stop, progress| run(inputs, settings, stages, rx, stop, progress))
+    }
+
+    /// A job fitting the tiles of a capture whose points were fitted
+    /// elsewhere (`crate::tiles`): it takes no frames, and runs the stages
+    /// after the per-point fit.
+    pub fn start_merged(inputs: FitInputs, settings: FitSettings, stages: Stages, tiles: Vec<fit::TileFit>) -> Self {
+        Self::spawn(None, move |stop, progress| {
+            let ctx = FitContext::new(inputs).with_progress(progress);
+            Ok(fit::run_merged(&ctx, tiles, settings, &stages, &|| stop.load(Ordering::Relaxed))?)
+        })
+    }
+
+    fn spawn(
+        tx: Option<mpsc::Sender<FrameMsg>>,
+        body: impl FnOnce(&AtomicBool, Arc<FitProgress>) -> Result<FitResult> + Send + 'static,
+    ) -> Self {
         let stop = Arc::new(AtomicBool::new(false));
         let stop2 = stop.clone();
         let progress = Arc::new(FitProgress::new());
         let progress2 = progress.clone();
         let handle = std::thread::Builder::new()
             .name("fitter".into())
-            .spawn(move || run(inputs, settings, stages, rx, &stop2, progress2))
+            .spawn(move || body(&stop2, progress2))
             .map_err(|e| anyhow!("cannot start the fitter thread: {e}"));
         match handle {
-            Ok(h) => Self { tx: Some(tx), handle: Some(h), stop, progress },
+            Ok(h) => Self { tx, handle: Some(h), stop, progress },
             Err(e) => {
                 tracing::error!("{e}");
                 Self { tx: None, handle: None, stop, progress }

@@ -13,6 +13,7 @@ pub mod output;
 pub mod paths;
 pub mod progress;
 pub mod session;
+pub mod tiles;
 pub mod web;
 
 /// Exit codes of the binaries, and the one place that maps an error to its

@@ -237,19 +237,25 @@ pub fn write_report(root: &Path, report: &Report) -> Result<()> {
     Ok(())
 }
 
-/// `refl fit DIR`: refit a stored capture (replaying its frames through the
-/// same streaming fitter), writing `material/` and updating `report.json`.
-/// A capture missing planned shots is refused unless `partial`; its
-/// material is then marked partial in its provenance.
-pub async fn refit(
+/// A stored capture as the fit reads it: its description, frames and
+/// quality, and how many planned shots it holds.
+pub(crate) struct Stored {
+    pub info: CaptureInfo,
+    pub entries: Vec<store::ManifestEntry>,
+    pub q: Quality,
+    pub planned: usize,
+    pub missing: usize,
+}
+
+/// Read a stored capture for a fit. One missing planned shots is refused
+/// unless `partial` (its material is then marked partial).
+pub(crate) fn stored_capture(
     dir: &Path,
+    info: CaptureInfo,
     q_override: Option<Quality>,
     partial: bool,
     rep: &mut Reporter,
-    stop: &watch::Receiver<bool>,
-) -> Result<PathBuf> {
-    let info = store::CaptureDir::read_info(dir)?;
-    let lock = store::DirLock::acquire(dir)?;
+) -> Result<Stored> {
     let (entries, torn) = store::CaptureDir::read_manifest(dir)?;
     if torn {
         rep.warn("the manifest's last line is torn (the capture was interrupted); fitting what is complete");
@@ -284,16 +290,46 @@ pub async fn refit(
         Some(q) => q,
         None => serde_json::from_value(info.settings.clone()).context("capture.json lacks its quality settings")?,
     };
-    let inputs = crate::fitjob::fit_inputs(&info);
-    let job = FitJob::start(inputs, q.fit.clone(), q.stages(&Overrides::default()));
+    Ok(Stored { info, entries, q, planned, missing })
+}
+
+/// `refl fit DIR`: refit a stored capture (replaying its frames through the
+/// same streaming fitter), writing `material/` and updating `report.json`.
+/// A capture missing planned shots is refused unless `partial`; its
+/// material is then marked partial in its provenance.
+pub async fn refit(
+    dir: &Path,
+    q_override: Option<Quality>,
+    partial: bool,
+    rep: &mut Reporter,
+    stop: &watch::Receiver<bool>,
+) -> Result<PathBuf> {
+    let info = store::CaptureDir::read_info(dir)?;
+    let lock = store::DirLock::acquire(dir)?;
+    let s = stored_capture(dir, info, q_override, partial, rep)?;
+    let inputs = crate::fitjob::fit_inputs(&s.info);
+    let job = FitJob::start(inputs, s.q.fit.clone(), s.q.stages(&Overrides::default()));
     let t = Instant::now();
-    let n = tokio::task::block_in_place(|| crate::fitjob::replay(dir, &entries, &job, &stop_requested(stop)))?;
+    let n = tokio::task::block_in_place(|| crate::fitjob::replay(dir, &s.entries, &job, &stop_requested(stop)))?;
     rep.stage("fit", format!("{n} stored frames read in {:.1} s", t.elapsed().as_secs_f64()));
+    finish_stored(dir, s, job, lock, rep, stop).await
+}
+
+/// Write a stored capture's material and report from its fit `job`, and
+/// mark the capture complete when it holds every planned shot.
+pub(crate) async fn finish_stored(
+    dir: &Path,
+    s: Stored,
+    job: FitJob,
+    lock: store::DirLock,
+    rep: &mut Reporter,
+    stop: &watch::Receiver<bool>,
+) -> Result<PathBuf> {
+    let Stored { mut info, q, planned, missing, .. } = s;
     let mut report = Report { sample: info.sample.clone(), quality: q.name.clone(), ..Report::default() };
-    let mut info = info;
     if missing > 0 {
         info.status = store::CaptureStatus::Interrupted;
-        report.partial = Some(report::PartialReport { planned_shots: planned, stored_shots: held });
+        report.partial = Some(report::PartialReport { planned_shots: planned, stored_shots: planned - missing });
     }
     let m = finish_fit(job, &info, &q, dir, rep, &mut report, stop).await?;
     report.peak_memory_mb = report::peak_memory_mb();

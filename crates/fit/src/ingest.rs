@@ -125,14 +125,21 @@ pub struct Ingest<'a> {
 
 impl<'a> Ingest<'a> {
     pub fn new(ctx: &'a FitContext) -> Self {
-        let n = ctx.n_points();
-        let peak_irradiance = (0..n)
+        Self::for_points(ctx, 0..ctx.n_points())
+    }
+
+    /// An ingest that keeps the samples of the grid's points `points` only
+    /// (one tile of a fit spread over machines, `crate::tile`). Each
+    /// point's samples are those the whole grid's ingest makes.
+    pub fn for_points(ctx: &'a FitContext, points: std::ops::Range<usize>) -> Self {
+        let peak_irradiance = points
+            .clone()
             .into_par_iter()
             .map(|p| (0..ctx.n_lights()).filter_map(|q| ctx.sample(p, q)).map(|s| s.irradiance).fold(0.0f32, f32::max))
             .collect();
         Self {
             ctx,
-            store: SampleStore::new(n, ctx.n_lights()),
+            store: SampleStore::for_points(points, ctx.n_lights()),
             dark: vec![DarkLevel::default(); ctx.inputs.plan.exposures_us.len()],
             peak_irradiance,
             drift: crate::drift::DriftTrack::new(ctx),
@@ -166,11 +173,15 @@ impl<'a> Ingest<'a> {
         let (dark, black) = (&self.dark, ctx.inputs.calibration.black_level);
         self.drift.push(q, &img, |px| dark_level(dark, shot.exposure, px, black), &frame.meta);
         let scale = per_second(&frame.meta);
-        let darks: Vec<[f32; 3]> =
-            ctx.pixels.iter().map(|px| px.map_or([0.0; 3], |px| self.dark_at(shot.exposure, px))).collect();
+        let first = self.store.points().start;
+        let darks: Vec<[f32; 3]> = ctx.pixels[self.store.points()]
+            .iter()
+            .map(|px| px.map_or([0.0; 3], |px| self.dark_at(shot.exposure, px)))
+            .collect();
         let peak = &self.peak_irradiance;
         let (rho_row, flag_row) = self.store.row_mut(q);
-        rho_row.par_iter_mut().zip(flag_row.par_iter_mut()).enumerate().for_each(|(p, (rho, fl))| {
+        rho_row.par_iter_mut().zip(flag_row.par_iter_mut()).enumerate().for_each(|(i, (rho, fl))| {
+            let p = first + i;
             let Some(px) = ctx.pixels[p] else {
                 *fl = flag::OUT_OF_VIEW;
                 return;
@@ -183,7 +194,7 @@ impl<'a> Ingest<'a> {
                 *fl = flag::OCCLUDED;
                 return;
             }
-            if g.irradiance < DIM_FRACTION * peak[p] {
+            if g.irradiance < DIM_FRACTION * peak[i] {
                 *fl = flag::DIM;
                 return;
             }
@@ -203,7 +214,7 @@ impl<'a> Ingest<'a> {
             if !take {
                 return;
             }
-            let d = darks[p];
+            let d = darks[i];
             let k = scale * g.to_rho;
             let r = [(v[0] - d[0]) * k, (v[1] - d[1]) * k, (v[2] - d[2]) * k];
             // A reflectance beyond f16's range means the calibration does

@@ -53,7 +53,7 @@ pub mod tol;
 pub use context::{FitContext, FitInputs};
 pub use ingest::{FrameSink, Ingest};
 pub use partial::{DEFAULT_ETA, PointFit, PointSamples, Sample, point_flag};
-pub use pipeline::{FitError, FitResult, PartialMaps, Pipeline, Stages, Timings};
+pub use pipeline::{FitError, FitResult, PartialMaps, Pipeline, Stages, TileFit, TilePipeline, Timings, run_merged};
 pub use points::{PointMaps, fit_points};
 pub use progress::{FitProgress, FitStage};
 pub use samples::SampleStore;

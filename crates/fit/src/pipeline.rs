@@ -205,13 +205,103 @@ impl<'a> Pipeline<'a> {
         let (store, drift) = self.ingest.finish();
         self.ctx.progress.advance(1);
         let drift_s = t.elapsed().as_secs_f64();
-        let mut r = run_from(self.ctx, store, self.settings, &self.stages, stop, self.last_frame)?;
+        let mut r = run_from(self.ctx, store, self.settings, &self.stages, None, stop, self.last_frame)?;
         r.frames = frames;
         r.drift = drift;
         r.timings.drift_s = drift_s;
         r.timings.ingest_s = self.ingest_s;
         Ok(r)
     }
+}
+
+/// One tile's share of a fit spread over machines (`crate::tile`): the
+/// samples of its points and their per-point fits, stage 2 of the one
+/// order, made exactly as the whole grid's fit makes them.
+#[derive(Debug)]
+pub struct TileFit {
+    pub store: SampleStore,
+    pub maps: PointMaps,
+    pub drift: Option<crate::drift::DriftSummary>,
+    pub frames: u64,
+    pub ingest_s: f64,
+    /// The drift correction and the per-point fits, after the last frame.
+    pub points_s: f64,
+}
+
+/// A tile's ingest and per-point fit, fed frame by frame like [`Pipeline`].
+#[derive(Debug)]
+pub struct TilePipeline<'a> {
+    ctx: &'a FitContext,
+    ingest: Ingest<'a>,
+    settings: FitSettings,
+    ingest_s: f64,
+}
+
+impl<'a> TilePipeline<'a> {
+    /// The grid's points `points` (a tile, [`crate::tile::Tile::points`]).
+    pub fn new(ctx: &'a FitContext, settings: FitSettings, points: std::ops::Range<usize>) -> Self {
+        Self { ctx, ingest: Ingest::for_points(ctx, points), settings, ingest_s: 0.0 }
+    }
+
+    /// No more frames: correct the drift and fit the tile's points.
+    pub fn finish(self, stop: &dyn Fn() -> bool) -> Result<TileFit, FitError> {
+        let t = Instant::now();
+        let frames = self.ingest.frames;
+        self.ctx.progress.begin(crate::FitStage::Drift, 1);
+        let (store, drift) = self.ingest.finish();
+        self.ctx.progress.advance(1);
+        if stop() {
+            return Err(FitError::Stopped);
+        }
+        let op = MaskingOperator::new(self.settings.grid);
+        let maps = crate::points::fit_points(self.ctx, &store, &self.settings, &op);
+        Ok(TileFit { store, maps, drift, frames, ingest_s: self.ingest_s, points_s: t.elapsed().as_secs_f64() })
+    }
+}
+
+impl crate::ingest::FrameSink for TilePipeline<'_> {
+    fn push_dark(&mut self, exposure: u8, frame: &Frame) {
+        let t = Instant::now();
+        self.ingest.push_dark(exposure, frame);
+        self.ingest_s += t.elapsed().as_secs_f64();
+    }
+    fn push_shot(&mut self, shot: &PlannedShot, frame: &Frame) {
+        let t = Instant::now();
+        self.ingest.push_shot(shot, frame);
+        self.ingest_s += t.elapsed().as_secs_f64();
+    }
+}
+
+/// The fit's stages after the per-point fit, on the tiles of the whole grid
+/// (in order, covering it): the same result as [`Pipeline`] fed the same
+/// frames, as the tiles' samples and per-point fits are the whole grid's.
+pub fn run_merged(
+    ctx: &FitContext,
+    tiles: Vec<TileFit>,
+    settings: FitSettings,
+    stages: &Stages,
+    stop: &dyn Fn() -> bool,
+) -> Result<FitResult, FitError> {
+    let frames = tiles.first().map_or(0, |t| t.frames);
+    let drift = tiles.first().and_then(|t| t.drift);
+    let ingest_s = tiles.iter().map(|t| t.ingest_s).fold(0.0, f64::max);
+    let points_s = tiles.iter().map(|t| t.points_s).fold(0.0, f64::max);
+    let (stores, maps): (Vec<SampleStore>, Vec<PointMaps>) = tiles.into_iter().map(|t| (t.store, t.maps)).unzip();
+    let whole = |ok: bool| {
+        if ok { Ok(()) } else { Err(FitError::NoSamples("the tiles do not make up the capture's grid".into())) }
+    };
+    let store = SampleStore::concat(&stores);
+    whole(store.as_ref().is_some_and(|s| s.points() == (0..ctx.n_points())))?;
+    drop(stores);
+    let maps = PointMaps::concat(maps);
+    whole(maps.as_ref().is_some_and(|m| m.len() == ctx.n_points()))?;
+    let (Some(store), Some(maps)) = (store, maps) else { unreachable!("checked above") };
+    let mut r = run_from(ctx, store, settings, stages, Some(maps), stop, Instant::now())?;
+    r.frames = frames;
+    r.drift = drift;
+    r.timings.ingest_s = ingest_s;
+    r.timings.points_s = points_s;
+    Ok(r)
 }
 
 impl crate::ingest::FrameSink for Pipeline<'_> {
@@ -231,14 +321,17 @@ pub fn run_stages(
     stages: &Stages,
     stop: &dyn Fn() -> bool,
 ) -> Result<FitResult, FitError> {
-    run_from(ctx, store, settings, stages, stop, Instant::now())
+    run_from(ctx, store, settings, stages, None, stop, Instant::now())
 }
 
+/// The stages from the per-point fit on (`points`: its maps, made already
+/// by a fit's tiles).
 fn run_from(
     ctx: &FitContext,
     store: SampleStore,
     settings: FitSettings,
     stages: &Stages,
+    points: Option<PointMaps>,
     stop: &dyn Fn() -> bool,
     started: Instant,
 ) -> Result<FitResult, FitError> {
@@ -254,7 +347,7 @@ fn run_from(
         tracing::warn!("{w}");
     }
     let mut timings = Timings::default();
-    let fitted = fit_stages(ctx, &store, &settings, stages, None, stop, started, &mut timings)?;
+    let fitted = fit_stages(ctx, &store, &settings, stages, points, None, stop, started, &mut timings)?;
     let selection = match (&stages.analytic, &fitted.evidence) {
         (Some(a), Some(ev)) => {
             let t = Instant::now();
@@ -295,14 +388,16 @@ struct Fitted {
     evidence: Option<Evidence>,
 }
 
-/// Stages 2-5 without the choice: per point, synthesis, pooling, analytic
-/// fits (their shapes started from `prior`'s where given).
+/// Stages 2-5 without the choice: per point (unless `points` holds its
+/// maps already), synthesis, pooling, analytic fits (their shapes started
+/// from `prior`'s where given).
 #[allow(clippy::too_many_arguments)]
 fn fit_stages(
     ctx: &FitContext,
     store: &SampleStore,
     settings: &FitSettings,
     stages: &Stages,
+    points: Option<PointMaps>,
     prior: Option<&[ModelFit]>,
     stop: &dyn Fn() -> bool,
     started: Instant,
@@ -310,7 +405,10 @@ fn fit_stages(
 ) -> Result<Fitted, FitError> {
     let stopped = || if stop() { Err(FitError::Stopped) } else { Ok(()) };
     let op = MaskingOperator::new(settings.grid);
-    let mut maps = crate::points::fit_points(ctx, store, settings, &op);
+    let mut maps = match points {
+        Some(maps) => maps,
+        None => crate::points::fit_points(ctx, store, settings, &op),
+    };
     timings.points_s = started.elapsed().as_secs_f64();
     stopped()?;
     let (partial, synth) = match &stages.synth {
@@ -397,7 +495,8 @@ fn choice_scores(
     let mut ignored = Timings::default();
     ctx.progress.begin(crate::FitStage::Choice, 0);
     ctx.progress.set_refitting(true);
-    let h = fit_stages(ctx, store, &refit, &refit_stages, Some(&fitted.models), stop, Instant::now(), &mut ignored);
+    let h =
+        fit_stages(ctx, store, &refit, &refit_stages, None, Some(&fitted.models), stop, Instant::now(), &mut ignored);
     ctx.progress.set_refitting(false);
     let h = h?;
     ctx.progress.begin(crate::FitStage::Choice, ctx.n_points() as u64);

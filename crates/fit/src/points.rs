@@ -41,6 +41,37 @@ impl PointMaps {
     pub fn is_empty(&self) -> bool {
         self.kd.is_empty()
     }
+
+    /// The maps of consecutive tiles, in order, as one; `None` when their
+    /// table grids differ.
+    pub fn concat(parts: Vec<PointMaps>) -> Option<PointMaps> {
+        let grid = parts.first()?.tables.grid();
+        if parts.iter().any(|m| m.tables.grid() != grid) {
+            return None;
+        }
+        let n = parts.iter().map(PointMaps::len).sum();
+        let (mut values, mut coverage) = (Vec::new(), Vec::new());
+        let mut all = PointMaps {
+            kd: Vec::with_capacity(n),
+            ks: Vec::with_capacity(n),
+            eta: Vec::with_capacity(n),
+            flags: Vec::with_capacity(n),
+            tables: TableSet::new(grid, 0),
+            stats: Vec::with_capacity(n),
+        };
+        for m in parts {
+            let (v, c) = m.tables.raw();
+            values.extend_from_slice(v);
+            coverage.extend_from_slice(c);
+            all.kd.extend(m.kd);
+            all.ks.extend(m.ks);
+            all.eta.extend(m.eta);
+            all.flags.extend(m.flags);
+            all.stats.extend(m.stats);
+        }
+        all.tables = TableSet::from_raw(grid, n, values, coverage)?;
+        Some(all)
+    }
 }
 
 /// Collect one point's usable samples with their noise variance (the
@@ -198,11 +229,13 @@ impl SampleNoise {
     }
 }
 
-/// Fit every point (parallel over points).
+/// Fit every point the store holds (parallel over points): the whole grid,
+/// or one tile of it (the maps' entry `i` is then the tile's `i`-th point).
 pub fn fit_points(ctx: &FitContext, store: &SampleStore, settings: &FitSettings, op: &MaskingOperator) -> PointMaps {
-    let n = ctx.n_points();
+    let n = store.points().len();
     ctx.progress.begin(crate::FitStage::Points, n as u64);
-    let fits: Vec<_> = (0..n)
+    let fits: Vec<_> = store
+        .points()
         .into_par_iter()
         .map_init(Scratch::default, |scratch, p| {
             let ps = gather(ctx, store, p, settings);

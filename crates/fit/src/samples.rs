@@ -1,7 +1,9 @@
 //! Per-(light, point) reflectance samples, stored as the fitter's working set.
 //!
 //! Memory plan: each sample is three `f16` reflectances (6 bytes) and a flag
-//! byte, light-major (`light * n_points + point`). The talk's scale,
+//! byte, light-major (`light * n_points + point`). A store may hold a range of the
+//! grid's points only (one tile of a fit spread over machines, see
+//! `crate::tile`); its points keep their grid indices. The talk's scale,
 //! 800 x 800 points x 2,560 lights, is 1.64 G samples = 11.5 GB, which fits
 //! this project's 24 GB machines with room for the NDF tables (`f16`,
 //! 3.9 GB at 3,072 cells). `f16` keeps 11 significant bits (0.05%
@@ -33,6 +35,8 @@ pub mod flag {
 
 #[derive(Clone, Debug, PartialEq)]
 pub struct SampleStore {
+    /// Grid index of the store's first point.
+    first: usize,
     n_points: usize,
     n_lights: usize,
     rho: Vec<[f16; 3]>,
@@ -41,8 +45,74 @@ pub struct SampleStore {
 
 impl SampleStore {
     pub fn new(n_points: usize, n_lights: usize) -> Self {
-        let n = n_points * n_lights;
-        Self { n_points, n_lights, rho: vec![[f16::ZERO; 3]; n], flags: vec![flag::MISSING; n] }
+        Self::for_points(0..n_points, n_lights)
+    }
+
+    /// A store for the grid's points `points` only.
+    pub fn for_points(points: std::ops::Range<usize>, n_lights: usize) -> Self {
+        let n = points.len() * n_lights;
+        Self {
+            first: points.start,
+            n_points: points.len(),
+            n_lights,
+            rho: vec![[f16::ZERO; 3]; n],
+            flags: vec![flag::MISSING; n],
+        }
+    }
+
+    /// The grid indices of the points held.
+    pub fn points(&self) -> std::ops::Range<usize> {
+        self.first..self.first + self.n_points
+    }
+
+    /// Raw storage, light-major over the points held (for a tile file).
+    pub fn raw(&self) -> (&[[f16; 3]], &[u8]) {
+        (&self.rho, &self.flags)
+    }
+
+    /// Rebuild from [`SampleStore::raw`]; `None` when the lengths do not
+    /// fit `points` and `n_lights`.
+    pub fn from_raw(
+        points: std::ops::Range<usize>,
+        n_lights: usize,
+        rho: Vec<[f16; 3]>,
+        flags: Vec<u8>,
+    ) -> Option<Self> {
+        let n = points.len() * n_lights;
+        (rho.len() == n && flags.len() == n).then_some(Self {
+            first: points.start,
+            n_points: points.len(),
+            n_lights,
+            rho,
+            flags,
+        })
+    }
+
+    /// The stores of consecutive point ranges (tiles, in order) as one
+    /// store over their union; `None` when they do not follow one another
+    /// or differ in lights.
+    pub fn concat(parts: &[SampleStore]) -> Option<Self> {
+        let first = parts.first()?;
+        let n_lights = first.n_lights;
+        let mut end = first.first;
+        for s in parts {
+            if s.first != end || s.n_lights != n_lights {
+                return None;
+            }
+            end += s.n_points;
+        }
+        let mut all = Self::for_points(first.first..end, n_lights);
+        for q in 0..n_lights {
+            let (rho, flags) = all.row_mut(q);
+            let mut at = 0;
+            for s in parts {
+                let r = q * s.n_points..(q + 1) * s.n_points;
+                rho[at..at + s.n_points].copy_from_slice(&s.rho[r.clone()]);
+                flags[at..at + s.n_points].copy_from_slice(&s.flags[r]);
+                at += s.n_points;
+            }
+        }
+        Some(all)
     }
 
     /// Bytes held (for the memory report).
@@ -58,9 +128,10 @@ impl SampleStore {
         self.n_lights
     }
 
+    /// The sample of `light` at grid point `point` (one the store holds).
     #[inline]
     pub fn get(&self, light: usize, point: usize) -> ([f32; 3], u8) {
-        let k = light * self.n_points + point;
+        let k = light * self.n_points + (point - self.first);
         let r = self.rho[k];
         ([r[0].to_f32(), r[1].to_f32(), r[2].to_f32()], self.flags[k])
     }
@@ -75,8 +146,8 @@ impl SampleStore {
         #[cfg(target_arch = "x86_64")]
         {
             use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
-            let k = light * self.n_points + point;
-            if k < self.flags.len() {
+            let k = light * self.n_points + point.wrapping_sub(self.first);
+            if point >= self.first && k < self.flags.len() {
                 // SAFETY: a prefetch never faults and reads nothing into
                 // the program; both pointers are inside their vectors.
                 unsafe {
@@ -89,7 +160,8 @@ impl SampleStore {
         let _ = (light, point);
     }
 
-    /// Mutable access to one light's row (for ingest).
+    /// Mutable access to one light's row over the points held (for ingest;
+    /// element `i` is grid point `points().start + i`).
     pub fn row_mut(&mut self, light: usize) -> (&mut [[f16; 3]], &mut [u8]) {
         let r = light * self.n_points..(light + 1) * self.n_points;
         (&mut self.rho[r.clone()], &mut self.flags[r])

@@ -93,6 +93,19 @@ impl DirLock {
             Err(fs::TryLockError::Error(e)) => Err(io_err("locking", root, e, root)),
         }
     }
+
+    /// Take a shared lock on `root` without waiting: readers that write
+    /// only their own files beside the capture (the tiles of a fit spread
+    /// over machines) hold it together; a writer holding the lock (a
+    /// capture in progress) means [`StoreError::Locked`].
+    pub fn acquire_shared(root: &Path) -> Result<Self, StoreError> {
+        let dir = File::open(root).map_err(|e| io_err("opening", root, e, root))?;
+        match dir.try_lock_shared() {
+            Ok(()) => Ok(Self { _dir: dir }),
+            Err(fs::TryLockError::WouldBlock) => Err(StoreError::Locked { dir: root.display().to_string() }),
+            Err(fs::TryLockError::Error(e)) => Err(io_err("locking", root, e, root)),
+        }
+    }
 }
 
 /// What a resume found.

@@ -29,6 +29,17 @@ enum Cmd {
         /// resumed); the material and report are marked partial.
         #[arg(long)]
         partial: bool,
+        /// Fit only tile K (from 0) of N: read every frame, keep and fit the
+        /// points of the K-th of N runs of the grid, and write
+        /// DIR/tiles/K-of-N.tile with a done marker. Tiles run at once, on
+        /// one machine or many sharing DIR; `--merge` then finishes the fit.
+        #[arg(long, value_name = "K/N", conflicts_with = "merge")]
+        tile: Option<cli::tiles::Tile>,
+        /// Finish a fit made in tiles (`--tile`): the stages that need every
+        /// point, then DIR/material and DIR/report.json as a whole `refl fit`
+        /// writes them; the tiles are removed afterwards.
+        #[arg(long)]
+        merge: bool,
     },
     /// Score a capture's fitted material: renders under novel conditions
     /// against ground truth (simulated captures), NDF errors, and hold-out
@@ -360,7 +371,7 @@ fn main() -> ExitCode {
     let r: anyhow::Result<()> = rt.block_on(async {
         let stop = cli::stop_on_signals()?;
         match args.cmd {
-            Cmd::Fit { dir, quality, partial } => {
+            Cmd::Fit { dir, quality, partial, tile, merge } => {
                 let mut rep = cli::progress::Reporter::auto(false);
                 let q = match quality {
                     Some(n) => {
@@ -368,7 +379,11 @@ fn main() -> ExitCode {
                     }
                     None => None,
                 };
-                let m = cli::output::refit(&dir, q, partial, &mut rep, &stop).await?;
+                let m = match (tile, merge) {
+                    (Some(tile), _) => cli::tiles::fit_tile(&dir, tile, q, partial, &mut rep, &stop).await?,
+                    (None, true) => cli::tiles::merge(&dir, q, partial, &mut rep, &stop).await?,
+                    (None, false) => cli::output::refit(&dir, q, partial, &mut rep, &stop).await?,
+                };
                 println!("{}", m.display());
                 Ok(())
             }
