@@ -184,9 +184,12 @@ python3 scripts/same-material.py "$root/whole/material" "$root/split1/material" 
 echo "slurm-test: $quality satin ($profile build): whole fit ${whole_s} s; through Slurm with 1 task of $cpus CPUs ${split1_s} s, with 2 tasks of 1 CPU ${split2_s} s (submission to merged material)" >&2
 python3 - "$root/whole/report.json" "$root/split2/report.json" <<'PY'
 import json, sys
+# Seconds by stage (the tiles' slowest for ingest and points), then the
+# process's peak memory in MB.
 for name, path in zip(["whole fit", "2 tiles + merge"], sys.argv[1:]):
-    t = json.load(open(path))["timings"]
-    stages = ["fit_ingest_s", "fit_points_s", "fit_synthesis_s", "fit_pool_s", "fit_analytic_s", "fit_selection_s", "material_write_s"]
+    r = json.load(open(path))
+    t = dict(r["timings"], peak_memory_mbs=r.get("peak_memory_mb") or 0)
+    stages = ["fit_ingest_s", "fit_points_s", "fit_synthesis_s", "fit_pool_s", "fit_analytic_s", "fit_selection_s", "material_write_s", "peak_memory_mbs"]
     print(f"slurm-test: {name:16} " + "  ".join(f"{k[4:-2] if k.startswith('fit_') else k[:-2]} {t.get(k, 0):.1f}" for k in stages), file=sys.stderr)
 PY
 # Each tile's own time (frames read, its points ingested and fitted) and

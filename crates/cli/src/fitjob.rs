@@ -39,13 +39,13 @@ impl FitJob {
         Self::spawn(Some(tx), move |stop, progress| run(inputs, settings, stages, rx, stop, progress))
     }
 
-    /// A job fitting the tiles of a capture whose points were fitted
-    /// elsewhere (`crate::tiles`): it takes no frames, and runs the stages
-    /// after the per-point fit.
-    pub fn start_merged(inputs: FitInputs, settings: FitSettings, stages: Stages, tiles: Vec<fit::TileFit>) -> Self {
+    /// A job fitting a capture whose points were fitted in tiles elsewhere
+    /// (`crate::tiles`), joined into `whole`: it takes no frames, and runs
+    /// the stages after the per-point fit.
+    pub fn start_merged(inputs: FitInputs, settings: FitSettings, stages: Stages, whole: fit::TileFit) -> Self {
         Self::spawn(None, move |stop, progress| {
             let ctx = FitContext::new(inputs).with_progress(progress);
-            Ok(fit::run_merged(&ctx, tiles, settings, &stages, &|| stop.load(Ordering::Relaxed))?)
+            Ok(fit::run_merged(&ctx, whole, settings, &stages, &|| stop.load(Ordering::Relaxed))?)
         })
     }
 

@@ -232,18 +232,10 @@ pub async fn merge(
     let inputs = crate::fitjob::fit_inputs(&s.info);
     let n_points = inputs.grid.cols as usize * inputs.grid.rows as usize;
     let t = std::time::Instant::now();
-    let tiles = tokio::task::block_in_place(|| read_all(dir, &inputs_id, n_points)).map_err(crate::usage)?;
-    let drift = tiles[0].0.drift;
-    if tiles.iter().any(|(h, _)| h.drift != drift || h.frames != tiles[0].0.frames) {
-        return Err(crate::usage(anyhow!(
-            "the tiles in {} read different frames (their drift corrections differ): fit them again",
-            dir.join(TILES_DIR).display()
-        )));
-    }
+    let (tiles, whole) = tokio::task::block_in_place(|| read_all(dir, &inputs_id, n_points)).map_err(crate::usage)?;
     rep.stage("fit", format!("{} tiles read in {:.1} s", tiles.len(), t.elapsed().as_secs_f64()));
-    let tiles: Vec<fit::TileFit> = tiles.into_iter().map(|(_, t)| t).collect();
     let job =
-        crate::fitjob::FitJob::start_merged(inputs, s.q.fit.clone(), s.q.stages(&config::Overrides::default()), tiles);
+        crate::fitjob::FitJob::start_merged(inputs, s.q.fit.clone(), s.q.stages(&config::Overrides::default()), whole);
     let m = crate::output::finish_stored(dir, s, job, lock, rep, stop).await?;
     remove(dir)?;
     Ok(m)
@@ -373,14 +365,22 @@ pub fn write(capture: &Path, header: &TileHeader, t: &TileFit) -> Result<PathBuf
     Ok(path)
 }
 
-/// Read a tile file: its header and its samples and per-point fits.
-pub fn read(path: &Path) -> Result<(TileHeader, TileFit)> {
+fn damaged(path: &Path, why: String) -> anyhow::Error {
+    anyhow!("{} is not a whole tile ({why}); make it again with its `refl fit --tile`", path.display())
+}
+
+/// A tile file whose header is read and checked against its length.
+struct Opened {
+    r: CrcRead<BufReader<std::fs::File>>,
+    h: TileHeader,
+    path: PathBuf,
+}
+
+fn open(path: &Path) -> Result<Opened> {
     let file = std::fs::File::open(path).with_context(|| format!("opening {}", path.display()))?;
     let size = file.metadata().map(|m| m.len()).unwrap_or(0);
     let mut r = CrcRead { inner: BufReader::new(file), crc: crc32fast::Hasher::new() };
-    let damaged = |why: String| {
-        anyhow!("{} is not a whole tile ({why}); make it again with its `refl fit --tile`", path.display())
-    };
+    let damaged = |why: String| damaged(path, why);
     let mut head = [0u8; 16];
     r.read_exact(&mut head).map_err(|_| damaged("shorter than its header".into()))?;
     if &head[..8] != MAGIC {
@@ -397,63 +397,87 @@ pub fn read(path: &Path) -> Result<(TileHeader, TileFit)> {
     let mut json = vec![0u8; len as usize];
     r.read_exact(&mut json).map_err(|_| damaged("truncated in its header".into()))?;
     let h: TileHeader = serde_json::from_slice(&json).map_err(|e| damaged(format!("bad header: {e}")))?;
-    let n = h.points.len();
-    let cells = h.grid.len();
-    let words = cells.div_ceil(64);
-    // Refuse a header whose arrays the file cannot hold before allocating them.
-    let need = 16
-        + len as u64
-        + (n * h.lights) as u64 * 7
-        + n as u64 * (24 + 4 + 4 + 24)
-        + (n * cells) as u64 * 2
-        + (n * words) as u64 * 8
-        + 4;
-    if need != size {
+    let cells = h.grid.len() as u128;
+    // Refuse a header whose arrays the file cannot hold before allocating
+    // them (in u128: a damaged header's counts may overflow a usize).
+    let (n, lights) = (h.points.len() as u128, h.lights as u128);
+    let need =
+        16 + len as u128 + n * lights * 7 + n * (24 + 4 + 4 + 24) + n * cells * 2 + n * cells.div_ceil(64) * 8 + 4;
+    if need != size as u128 {
         bail!(damaged(format!("{size} bytes where its header needs {need}")));
     }
-    let short = |e: std::io::Error| damaged(format!("truncated: {e}"));
-    let rho = take(&mut r, n * h.lights, |b: [u8; 6]| {
-        [[b[0], b[1]], [b[2], b[3]], [b[4], b[5]]].map(|x| f16::from_bits(u16::from_le_bytes(x)))
-    })
-    .map_err(short)?;
-    let flags = take(&mut r, n * h.lights, |b: [u8; 1]| b[0]).map_err(short)?;
-    let kd = triples(take(&mut r, 3 * n, f32::from_le_bytes).map_err(short)?);
-    let ks = triples(take(&mut r, 3 * n, f32::from_le_bytes).map_err(short)?);
-    let eta = take(&mut r, n, f32::from_le_bytes).map_err(short)?;
-    let point_flags = take(&mut r, n, u32::from_le_bytes).map_err(short)?;
-    let raw = take(&mut r, 6 * n, u32::from_le_bytes).map_err(short)?;
-    let stats = raw
-        .chunks_exact(6)
-        .map(|s| PointStats {
-            usable: s[0],
-            saturated: s[1],
-            significant: s[2],
-            iterations: s[3],
-            noise: f32::from_bits(s[4]),
-            coverage: f32::from_bits(s[5]),
-        })
-        .collect();
-    let values = take(&mut r, n * cells, |b: [u8; 2]| f16::from_bits(u16::from_le_bytes(b))).map_err(short)?;
-    let coverage = take(&mut r, n * words, u64::from_le_bytes).map_err(short)?;
-    let crc = r.crc.clone().finalize();
-    let mut stored = [0u8; 4];
-    r.inner.read_exact(&mut stored).map_err(short)?;
-    if u32::from_le_bytes(stored) != crc {
-        bail!(damaged("its checksum does not match".into()));
+    Ok(Opened { r, h, path: path.to_path_buf() })
+}
+
+impl Opened {
+    /// Read the tile's samples into `store`, which holds its points (the
+    /// tile's own, or the whole grid's for a merge: no second copy), and
+    /// return its header and per-point fits.
+    fn read_into(self, store: &mut SampleStore) -> Result<(TileHeader, PointMaps)> {
+        let Opened { mut r, h, path } = self;
+        let damaged = |why: String| damaged(&path, why);
+        let held = store.points();
+        if h.points.start < held.start || h.points.end > held.end || store.n_lights() != h.lights {
+            bail!(damaged(format!("its points {:?} or {} lights are not the capture's", h.points, h.lights)));
+        }
+        let (n, at) = (h.points.len(), h.points.start - held.start);
+        let cells = h.grid.len();
+        let short = |e: std::io::Error| damaged(format!("truncated: {e}"));
+        for q in 0..h.lights {
+            let row = take(&mut r, n, |b: [u8; 6]| {
+                [[b[0], b[1]], [b[2], b[3]], [b[4], b[5]]].map(|x| f16::from_bits(u16::from_le_bytes(x)))
+            })
+            .map_err(short)?;
+            store.row_mut(q).0[at..at + n].copy_from_slice(&row);
+        }
+        for q in 0..h.lights {
+            let row = take(&mut r, n, |b: [u8; 1]| b[0]).map_err(short)?;
+            store.row_mut(q).1[at..at + n].copy_from_slice(&row);
+        }
+        let kd = triples(take(&mut r, 3 * n, f32::from_le_bytes).map_err(short)?);
+        let ks = triples(take(&mut r, 3 * n, f32::from_le_bytes).map_err(short)?);
+        let eta = take(&mut r, n, f32::from_le_bytes).map_err(short)?;
+        let point_flags = take(&mut r, n, u32::from_le_bytes).map_err(short)?;
+        let raw = take(&mut r, 6 * n, u32::from_le_bytes).map_err(short)?;
+        let stats = raw
+            .chunks_exact(6)
+            .map(|s| PointStats {
+                usable: s[0],
+                saturated: s[1],
+                significant: s[2],
+                iterations: s[3],
+                noise: f32::from_bits(s[4]),
+                coverage: f32::from_bits(s[5]),
+            })
+            .collect();
+        let values = take(&mut r, n * cells, |b: [u8; 2]| f16::from_bits(u16::from_le_bytes(b))).map_err(short)?;
+        let coverage = take(&mut r, n * cells.div_ceil(64), u64::from_le_bytes).map_err(short)?;
+        let crc = r.crc.clone().finalize();
+        let mut stored = [0u8; 4];
+        r.inner.read_exact(&mut stored).map_err(short)?;
+        if u32::from_le_bytes(stored) != crc {
+            bail!(damaged("its checksum does not match".into()));
+        }
+        let tables = TableSet::from_raw(h.grid, n, values, coverage)
+            .ok_or_else(|| damaged("its tables do not fit its grid".into()))?;
+        Ok((h, PointMaps { kd, ks, eta, flags: point_flags, tables, stats }))
     }
-    let store = SampleStore::from_raw(h.points.clone(), h.lights, rho, flags)
-        .ok_or_else(|| damaged("its samples do not fit its points".into()))?;
-    let tables = TableSet::from_raw(h.grid, n, values, coverage)
-        .ok_or_else(|| damaged("its tables do not fit its grid".into()))?;
-    let maps = PointMaps { kd, ks, eta, flags: point_flags, tables, stats };
+}
+
+/// Read a tile file: its header, and its samples and per-point fits.
+pub fn read(path: &Path) -> Result<(TileHeader, TileFit)> {
+    let o = open(path)?;
+    let mut store = SampleStore::for_points(o.h.points.clone(), o.h.lights);
+    let (h, maps) = o.read_into(&mut store)?;
     let t = TileFit { store, maps, drift: h.drift, frames: h.frames, ingest_s: h.ingest_s, points_s: h.points_s };
     Ok((h, t))
 }
 
-/// The tiles of `capture` made from `inputs` ([`fingerprint`]), in order:
-/// all `N` of one split, each whole. What is missing or stale is named,
-/// with the command that makes it.
-pub fn read_all(capture: &Path, inputs: &str, n_points: usize) -> Result<Vec<(TileHeader, TileFit)>> {
+/// The tiles of `capture` made from `inputs` ([`fingerprint`]): all `N` of
+/// one split, each whole, joined into one tile over the grid's `n_points`
+/// (the slowest tile's timings), with their headers in order. What is
+/// missing, damaged or stale is named, with the command that makes it.
+pub fn read_all(capture: &Path, inputs: &str, n_points: usize) -> Result<(Vec<TileHeader>, TileFit)> {
     let dir = capture.join(TILES_DIR);
     let mut markers: Vec<TileHeader> = Vec::new();
     let listing = std::fs::read_dir(&dir).with_context(|| {
@@ -501,20 +525,46 @@ pub fn read_all(capture: &Path, inputs: &str, n_points: usize) -> Result<Vec<(Ti
             stale.join(", ")
         );
     }
-    let mut out = Vec::with_capacity(count as usize);
+    // The tiles' samples go straight into one store over the whole grid,
+    // so that a merge holds them once, as a whole fit does.
+    let mut store: Option<SampleStore> = None;
+    let mut maps = Vec::with_capacity(count as usize);
+    let mut headers: Vec<TileHeader> = Vec::with_capacity(count as usize);
     for k in 0..count {
         let tile = Tile { index: k, count };
-        let (h, t) = read(&tile.file(capture))?;
+        let o = open(&tile.file(capture))?;
         let marked = markers.iter().find(|m| m.tile == tile);
-        if marked != Some(&h) || h.inputs != inputs || h.points != tile.points(n_points) {
+        if marked != Some(&o.h) || o.h.inputs != inputs || o.h.points != tile.points(n_points) {
             bail!(
                 "{} does not match its done marker or the capture's grid: fit tile {tile} again",
                 tile.file(capture).display()
             );
         }
-        out.push((h, t));
+        let whole = store.get_or_insert_with(|| SampleStore::for_points(0..n_points, o.h.lights));
+        let (h, m) = o.read_into(whole)?;
+        if let Some(first) = headers.first().filter(|f| f.drift != h.drift || f.frames != h.frames) {
+            bail!(
+                "tiles {} and {tile} read different frames (their frame counts or drift corrections differ): fit them \
+                 again",
+                first.tile
+            );
+        }
+        headers.push(h);
+        maps.push(m);
     }
-    Ok(out)
+    let (Some(store), Some(first)) = (store, headers.first()) else { bail!("no tiles to merge") };
+    let maps =
+        PointMaps::concat(maps).ok_or_else(|| anyhow!("the tiles' NDF tables differ in grid: fit them again"))?;
+    let max = |f: fn(&TileHeader) -> f64| headers.iter().map(f).fold(0.0, f64::max);
+    let whole = TileFit {
+        store,
+        maps,
+        drift: first.drift,
+        frames: first.frames,
+        ingest_s: max(|h| h.ingest_s),
+        points_s: max(|h| h.points_s),
+    };
+    Ok((headers, whole))
 }
 
 /// Remove the tiles once merged: only this program's own files
@@ -559,9 +609,14 @@ mod tests {
         let grid = NdfGrid::DEFAULT;
         let (points, lights) = (10..14, 5);
         let n = points.len();
-        let rho: Vec<[f16; 3]> = (0..n * lights).map(|k| [k as f32, 0.5, -1.0].map(f16::from_f32)).collect();
-        let flags: Vec<u8> = (0..n * lights).map(|k| (k % 7) as u8).collect();
-        let store = SampleStore::from_raw(points.clone(), lights, rho, flags).unwrap();
+        let mut store = SampleStore::for_points(points.clone(), lights);
+        for q in 0..lights {
+            let (rho, flags) = store.row_mut(q);
+            for i in 0..n {
+                rho[i] = [(q * n + i) as f32, 0.5, -1.0].map(f16::from_f32);
+                flags[i] = ((q + i) % 7) as u8;
+            }
+        }
         let mut tables = TableSet::new(grid, n);
         let mut t = brdf::ndf::NdfTable::zeros(grid);
         t.values_mut()[3] = 2.5;

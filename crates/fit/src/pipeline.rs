@@ -113,6 +113,8 @@ pub enum FitError {
     NoSamples(String),
     #[error("too few usable samples: {0}; shorten the exposure or add HDR brackets (--hdr), then capture again")]
     Saturated(String),
+    #[error("the tiles do not make up the capture's grid of {0} points: fit the missing ones")]
+    Tiles(usize),
 }
 
 /// Fewer usable samples than this fraction of those the geometry allows
@@ -272,30 +274,21 @@ impl crate::ingest::FrameSink for TilePipeline<'_> {
     }
 }
 
-/// The fit's stages after the per-point fit, on the tiles of the whole grid
-/// (in order, covering it): the same result as [`Pipeline`] fed the same
-/// frames, as the tiles' samples and per-point fits are the whole grid's.
+/// The fit's stages after the per-point fit, on the tiles of a fit joined
+/// into one over the whole grid (`whole`): the same result as [`Pipeline`]
+/// fed the same frames, as the tiles' samples and per-point fits are the
+/// whole grid's.
 pub fn run_merged(
     ctx: &FitContext,
-    tiles: Vec<TileFit>,
+    whole: TileFit,
     settings: FitSettings,
     stages: &Stages,
     stop: &dyn Fn() -> bool,
 ) -> Result<FitResult, FitError> {
-    let frames = tiles.first().map_or(0, |t| t.frames);
-    let drift = tiles.first().and_then(|t| t.drift);
-    let ingest_s = tiles.iter().map(|t| t.ingest_s).fold(0.0, f64::max);
-    let points_s = tiles.iter().map(|t| t.points_s).fold(0.0, f64::max);
-    let (stores, maps): (Vec<SampleStore>, Vec<PointMaps>) = tiles.into_iter().map(|t| (t.store, t.maps)).unzip();
-    let whole = |ok: bool| {
-        if ok { Ok(()) } else { Err(FitError::NoSamples("the tiles do not make up the capture's grid".into())) }
-    };
-    let store = SampleStore::concat(&stores);
-    whole(store.as_ref().is_some_and(|s| s.points() == (0..ctx.n_points())))?;
-    drop(stores);
-    let maps = PointMaps::concat(maps);
-    whole(maps.as_ref().is_some_and(|m| m.len() == ctx.n_points()))?;
-    let (Some(store), Some(maps)) = (store, maps) else { unreachable!("checked above") };
+    let TileFit { store, maps, drift, frames, ingest_s, points_s } = whole;
+    if store.points() != (0..ctx.n_points()) || maps.len() != ctx.n_points() {
+        return Err(FitError::Tiles(ctx.n_points()));
+    }
     let mut r = run_from(ctx, store, settings, stages, Some(maps), stop, Instant::now())?;
     r.frames = frames;
     r.drift = drift;

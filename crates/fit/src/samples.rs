@@ -70,51 +70,6 @@ impl SampleStore {
         (&self.rho, &self.flags)
     }
 
-    /// Rebuild from [`SampleStore::raw`]; `None` when the lengths do not
-    /// fit `points` and `n_lights`.
-    pub fn from_raw(
-        points: std::ops::Range<usize>,
-        n_lights: usize,
-        rho: Vec<[f16; 3]>,
-        flags: Vec<u8>,
-    ) -> Option<Self> {
-        let n = points.len() * n_lights;
-        (rho.len() == n && flags.len() == n).then_some(Self {
-            first: points.start,
-            n_points: points.len(),
-            n_lights,
-            rho,
-            flags,
-        })
-    }
-
-    /// The stores of consecutive point ranges (tiles, in order) as one
-    /// store over their union; `None` when they do not follow one another
-    /// or differ in lights.
-    pub fn concat(parts: &[SampleStore]) -> Option<Self> {
-        let first = parts.first()?;
-        let n_lights = first.n_lights;
-        let mut end = first.first;
-        for s in parts {
-            if s.first != end || s.n_lights != n_lights {
-                return None;
-            }
-            end += s.n_points;
-        }
-        let mut all = Self::for_points(first.first..end, n_lights);
-        for q in 0..n_lights {
-            let (rho, flags) = all.row_mut(q);
-            let mut at = 0;
-            for s in parts {
-                let r = q * s.n_points..(q + 1) * s.n_points;
-                rho[at..at + s.n_points].copy_from_slice(&s.rho[r.clone()]);
-                flags[at..at + s.n_points].copy_from_slice(&s.flags[r]);
-                at += s.n_points;
-            }
-        }
-        Some(all)
-    }
-
     /// Bytes held (for the memory report).
     pub fn bytes(&self) -> usize {
         self.rho.len() * 6 + self.flags.len()
