@@ -247,8 +247,8 @@ pub(crate) struct Stored {
     pub missing: usize,
 }
 
-/// Read a stored capture for a fit. One missing planned shots is refused
-/// unless `partial` (its material is then marked partial).
+/// Read a stored capture for a fit. One that misses planned shots is
+/// refused unless `partial` (its material is then marked partial).
 pub(crate) fn stored_capture(
     dir: &Path,
     info: CaptureInfo,

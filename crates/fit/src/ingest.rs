@@ -129,7 +129,7 @@ impl<'a> Ingest<'a> {
     }
 
     /// An ingest that keeps the samples of the grid's points `points` only
-    /// (one tile of a fit spread over machines, `crate::tile`). Each
+    /// (one tile of a fit spread over machines, [`crate::TilePipeline`]). Each
     /// point's samples are those the whole grid's ingest makes.
     pub fn for_points(ctx: &'a FitContext, points: std::ops::Range<usize>) -> Self {
         let peak_irradiance = points

@@ -20,6 +20,11 @@
 //!    each region takes the simplest class that predicts those steps as
 //!    well as any ([`crate::select`]).
 //!
+//! A fit spread over machines runs the same stages: each tile ingests
+//! every frame into its own points' samples and fits them
+//! ([`TilePipeline`]), and the tiles joined run stages 3-6
+//! ([`run_merged`]).
+//!
 //! Between stages (and between analytic models) the caller's `stop` is
 //! polled; a stop ends the run with [`FitError::Stopped`].
 
@@ -216,7 +221,7 @@ impl<'a> Pipeline<'a> {
     }
 }
 
-/// One tile's share of a fit spread over machines (`crate::tile`): the
+/// One tile's share of a fit spread over machines (`refl fit --tile`): the
 /// samples of its points and their per-point fits, stage 2 of the one
 /// order, made exactly as the whole grid's fit makes them.
 #[derive(Debug)]
@@ -240,7 +245,7 @@ pub struct TilePipeline<'a> {
 }
 
 impl<'a> TilePipeline<'a> {
-    /// The grid's points `points` (a tile, [`crate::tile::Tile::points`]).
+    /// The grid's points `points` (one tile's run of them).
     pub fn new(ctx: &'a FitContext, settings: FitSettings, points: std::ops::Range<usize>) -> Self {
         Self { ctx, ingest: Ingest::for_points(ctx, points), settings, ingest_s: 0.0 }
     }

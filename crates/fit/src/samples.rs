@@ -3,7 +3,7 @@
 //! Memory plan: each sample is three `f16` reflectances (6 bytes) and a flag
 //! byte, light-major (`light * n_points + point`). A store may hold a range of the
 //! grid's points only (one tile of a fit spread over machines, see
-//! `crate::tile`); its points keep their grid indices. The talk's scale,
+//! [`crate::TilePipeline`]); its points keep their grid indices. The talk's scale,
 //! 800 x 800 points x 2,560 lights, is 1.64 G samples = 11.5 GB, which fits
 //! this project's 24 GB machines with room for the NDF tables (`f16`,
 //! 3.9 GB at 3,072 cells). `f16` keeps 11 significant bits (0.05%
