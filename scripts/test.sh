@@ -25,7 +25,11 @@ bash scripts/vm-systemd-test.sh
 # The fit in tiles on a real Slurm controller and node on loopback, and the
 # Kubernetes manifests that do the same.
 bash scripts/slurm-test.sh
-python3 tests/deploy/check_k8s.py
+# (PyYAML: Debian's python3-yaml, from setup.sh, where the python3 first on
+# PATH is another without it.)
+py=python3
+python3 -c "import yaml" 2>/dev/null || py=/usr/bin/python3
+"$py" tests/deploy/check_k8s.py
 # The shipped systemd unit, checked against the freshly built daemon.
 cargo build --quiet --bin refl
 if command -v systemd-analyze >/dev/null 2>&1; then
