@@ -105,18 +105,22 @@ pub struct TileHeader {
 }
 
 /// What the tiles of one fit must share: the capture's description (but
-/// its status, which a fit changes), the frames stored and the fitting
-/// settings.
-pub fn fingerprint(info: &store::CaptureInfo, entries: usize, fit: &fit::FitSettings) -> Result<String> {
+/// its status, which a fit changes), the frames stored (their manifest
+/// entries, checksums included) and the fitting settings.
+pub fn fingerprint(
+    info: &store::CaptureInfo,
+    entries: &[store::ManifestEntry],
+    fit: &fit::FitSettings,
+) -> Result<String> {
     let mut described = serde_json::to_value(info)?;
     if let Some(o) = described.as_object_mut() {
         o.remove("status");
     }
     let mut h = crc32fast::Hasher::new();
     h.update(&serde_json::to_vec(&described)?);
-    h.update(&(entries as u64).to_le_bytes());
+    h.update(&serde_json::to_vec(entries)?);
     h.update(&serde_json::to_vec(fit)?);
-    Ok(format!("{:08x}-{entries}", h.finalize()))
+    Ok(format!("{:08x}-{}", h.finalize(), entries.len()))
 }
 
 /// How often a tile's progress is reported.
@@ -135,7 +139,7 @@ pub async fn fit_tile(
     let info = store::CaptureDir::read_info(dir)?;
     let lock = store::DirLock::acquire_shared(dir)?;
     let s = crate::output::stored_capture(dir, info, q_override, partial, rep)?;
-    let inputs_id = fingerprint(&s.info, s.entries.len(), &s.q.fit)?;
+    let inputs_id = fingerprint(&s.info, &s.entries, &s.q.fit)?;
     let ctx = fit::FitContext::new(crate::fitjob::fit_inputs(&s.info));
     let points = tile.points(ctx.n_points());
     if points.is_empty() {
@@ -228,7 +232,7 @@ pub async fn merge(
     let info = store::CaptureDir::read_info(dir)?;
     let lock = store::DirLock::acquire(dir)?;
     let s = crate::output::stored_capture(dir, info, q_override, partial, rep)?;
-    let inputs_id = fingerprint(&s.info, s.entries.len(), &s.q.fit)?;
+    let inputs_id = fingerprint(&s.info, &s.entries, &s.q.fit)?;
     let inputs = crate::fitjob::fit_inputs(&s.info);
     let n_points = inputs.grid.cols as usize * inputs.grid.rows as usize;
     let t = std::time::Instant::now();
@@ -237,7 +241,9 @@ pub async fn merge(
     let job =
         crate::fitjob::FitJob::start_merged(inputs, s.q.fit.clone(), s.q.stages(&config::Overrides::default()), whole);
     let m = crate::output::finish_stored(dir, s, job, lock, rep, stop).await?;
-    remove(dir)?;
+    if let Err(e) = remove(dir) {
+        rep.warn(format!("the material is written, but its tiles stay: {e:#}"));
+    }
     Ok(m)
 }
 
