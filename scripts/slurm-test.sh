@@ -185,12 +185,14 @@ echo "slurm-test: $quality satin ($profile build): whole fit ${whole_s} s; throu
 python3 - "$root/whole/report.json" "$root/split2/report.json" <<'PY'
 import json, sys
 # Seconds by stage (the tiles' slowest for ingest and points), then the
-# process's peak memory in MB.
+# process's peak memory.
+stages = ["ingest", "points", "synthesis", "pool", "analytic", "selection"]
 for name, path in zip(["whole fit", "2 tiles + merge"], sys.argv[1:]):
     r = json.load(open(path))
-    t = dict(r["timings"], peak_memory_mbs=r.get("peak_memory_mb") or 0)
-    stages = ["fit_ingest_s", "fit_points_s", "fit_synthesis_s", "fit_pool_s", "fit_analytic_s", "fit_selection_s", "material_write_s", "peak_memory_mbs"]
-    print(f"slurm-test: {name:16} " + "  ".join(f"{k[4:-2] if k.startswith('fit_') else k[:-2]} {t.get(k, 0):.1f}" for k in stages), file=sys.stderr)
+    t = r["timings"]
+    cols = [f"{k} {t.get('fit_' + k + '_s', 0):.1f}" for k in stages]
+    cols += [f"material_write {t.get('material_write_s', 0):.1f}", f"peak {r.get('peak_memory_mb') or 0:.0f} MB"]
+    print(f"slurm-test: {name:16} " + "  ".join(cols), file=sys.stderr)
 PY
 # Each tile's own time (frames read, its points ingested and fitted) and
 # the merge's reading of the tiles, from the jobs' logs.
