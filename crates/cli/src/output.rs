@@ -247,15 +247,19 @@ pub(crate) struct Stored {
     pub missing: usize,
 }
 
-/// Read a stored capture for a fit. One that misses planned shots is
-/// refused unless `partial` (its material is then marked partial).
-pub(crate) fn stored_capture(
+/// Lock a stored capture (`shared`: beside other readers, as a fit's
+/// tiles do; otherwise alone) and read it for a fit. One that misses
+/// planned shots is refused unless `partial` (its material is then marked
+/// partial).
+pub(crate) fn open_stored(
     dir: &Path,
-    info: CaptureInfo,
+    shared: bool,
     q_override: Option<Quality>,
     partial: bool,
     rep: &mut Reporter,
-) -> Result<Stored> {
+) -> Result<(store::DirLock, Stored)> {
+    let info = store::CaptureDir::read_info(dir)?;
+    let lock = if shared { store::DirLock::acquire_shared(dir)? } else { store::DirLock::acquire(dir)? };
     let (entries, torn) = store::CaptureDir::read_manifest(dir)?;
     if torn {
         rep.warn("the manifest's last line is torn (the capture was interrupted); fitting what is complete");
@@ -290,7 +294,7 @@ pub(crate) fn stored_capture(
         Some(q) => q,
         None => serde_json::from_value(info.settings.clone()).context("capture.json lacks its quality settings")?,
     };
-    Ok(Stored { info, entries, q, planned, missing })
+    Ok((lock, Stored { info, entries, q, planned, missing }))
 }
 
 /// `refl fit DIR`: refit a stored capture (replaying its frames through the
@@ -304,9 +308,7 @@ pub async fn refit(
     rep: &mut Reporter,
     stop: &watch::Receiver<bool>,
 ) -> Result<PathBuf> {
-    let info = store::CaptureDir::read_info(dir)?;
-    let lock = store::DirLock::acquire(dir)?;
-    let s = stored_capture(dir, info, q_override, partial, rep)?;
+    let (lock, s) = open_stored(dir, false, q_override, partial, rep)?;
     let inputs = crate::fitjob::fit_inputs(&s.info);
     let job = FitJob::start(inputs, s.q.fit.clone(), s.q.stages(&Overrides::default()));
     let t = Instant::now();

@@ -136,9 +136,7 @@ pub async fn fit_tile(
     rep: &mut Reporter,
     stop: &watch::Receiver<bool>,
 ) -> Result<PathBuf> {
-    let info = store::CaptureDir::read_info(dir)?;
-    let lock = store::DirLock::acquire_shared(dir)?;
-    let s = crate::output::stored_capture(dir, info, q_override, partial, rep)?;
+    let (lock, s) = crate::output::open_stored(dir, true, q_override, partial, rep)?;
     let inputs_id = fingerprint(&s.info, &s.entries, &s.q.fit)?;
     let ctx = fit::FitContext::new(crate::fitjob::fit_inputs(&s.info));
     let points = tile.points(ctx.n_points());
@@ -229,14 +227,12 @@ pub async fn merge(
     rep: &mut Reporter,
     stop: &watch::Receiver<bool>,
 ) -> Result<PathBuf> {
-    let info = store::CaptureDir::read_info(dir)?;
-    let lock = store::DirLock::acquire(dir)?;
-    let s = crate::output::stored_capture(dir, info, q_override, partial, rep)?;
+    let (lock, s) = crate::output::open_stored(dir, false, q_override, partial, rep)?;
     let inputs_id = fingerprint(&s.info, &s.entries, &s.q.fit)?;
     let inputs = crate::fitjob::fit_inputs(&s.info);
-    let n_points = inputs.grid.cols as usize * inputs.grid.rows as usize;
     let t = std::time::Instant::now();
-    let (tiles, whole) = tokio::task::block_in_place(|| read_all(dir, &inputs_id, n_points)).map_err(crate::usage)?;
+    let (tiles, whole) =
+        tokio::task::block_in_place(|| read_all(dir, &inputs_id, inputs.grid.len())).map_err(crate::usage)?;
     rep.stage("fit", format!("{} tiles read in {:.1} s", tiles.len(), t.elapsed().as_secs_f64()));
     let job =
         crate::fitjob::FitJob::start_merged(inputs, s.q.fit.clone(), s.q.stages(&config::Overrides::default()), whole);

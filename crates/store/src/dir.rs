@@ -86,12 +86,7 @@ impl DirLock {
     /// Take the lock on `root` without waiting: another writer means
     /// [`StoreError::Locked`].
     pub fn acquire(root: &Path) -> Result<Self, StoreError> {
-        let dir = File::open(root).map_err(|e| io_err("opening", root, e, root))?;
-        match dir.try_lock() {
-            Ok(()) => Ok(Self { _dir: dir }),
-            Err(fs::TryLockError::WouldBlock) => Err(StoreError::Locked { dir: root.display().to_string() }),
-            Err(fs::TryLockError::Error(e)) => Err(io_err("locking", root, e, root)),
-        }
+        Self::take(root, File::try_lock)
     }
 
     /// Take a shared lock on `root` without waiting: readers that write
@@ -99,8 +94,12 @@ impl DirLock {
     /// over machines) hold it together; a writer holding the lock (a
     /// capture in progress) means [`StoreError::Locked`].
     pub fn acquire_shared(root: &Path) -> Result<Self, StoreError> {
+        Self::take(root, File::try_lock_shared)
+    }
+
+    fn take(root: &Path, lock: fn(&File) -> Result<(), fs::TryLockError>) -> Result<Self, StoreError> {
         let dir = File::open(root).map_err(|e| io_err("opening", root, e, root))?;
-        match dir.try_lock_shared() {
+        match lock(&dir) {
             Ok(()) => Ok(Self { _dir: dir }),
             Err(fs::TryLockError::WouldBlock) => Err(StoreError::Locked { dir: root.display().to_string() }),
             Err(fs::TryLockError::Error(e)) => Err(io_err("locking", root, e, root)),
