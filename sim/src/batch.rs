@@ -1,7 +1,8 @@
 //! The simulated camera's pixels eight at a time (SIMD): the radiance of
 //! every pixel whose surface is nothing, diffuse, or a microfacet surface
-//! of one or two Beckmann lobes (with any Fresnel term the materials have),
-//! and every pixel's reading by the sensor (noise and quantisation).
+//! of one or two lobes, each Beckmann or a pile distribution (with any
+//! Fresnel term the materials have), and every pixel's reading by the
+//! sensor (noise and quantisation).
 //!
 //! The camera spends nearly all its time on a few transcendental functions
 //! per pixel and light (the LED's `cos^m`, each lobe's `exp`, the projected
@@ -9,7 +10,7 @@
 //! pixel at a time (`camera::Lit::radiance`, which stays as the path for
 //! every other surface and as the reference) it renders a 256 x 256 satin
 //! frame in about 5 ms on two cores. Here the same formulas run on eight
-//! pixels at once with polynomial `exp` and `ln` (`wide`) and Abramowitz
+//! pixels at once with polynomial `exp`, `ln` and `atan2` (`wide`) and Abramowitz
 //! and Stegun's `erf` (7.1.26, absolute error below 1.5e-7, sharing the
 //! `exp(-a^2)` the projected area needs anyway); the radiance agrees with
 //! the reference to a few parts in a million (tested), far below a DN.
@@ -18,10 +19,13 @@
 //! are kept as one array per quantity, so a batch is eight neighbours of a
 //! row loaded side by side.
 
+use std::sync::Arc;
+
+use brdf::ndf::Sheen;
 use glam::{Mat3, Vec3};
 use wide::{CmpEq, CmpGe, CmpGt, CmpLe, f32x8};
 
-use crate::reflect::{BatchedFresnel, MAX_BATCHED_LOBES, Reflectance};
+use crate::reflect::{BatchLobe, BatchedFresnel, MAX_BATCHED_LOBES, Reflectance};
 
 /// Pixels per batch.
 pub(crate) const LANES: usize = 8;
@@ -44,6 +48,15 @@ struct LobeColumns {
     ln_norm: Vec<f32>,
     ax: Vec<f32>,
     ay: Vec<f32>,
+    /// 1 where the lobe is a pile distribution ([`BatchLobe::Sheen`]), 0
+    /// where it is a Beckmann lobe; then its normalisation, amplitude,
+    /// squared sharpness and table (an index into
+    /// [`PixelColumns::sheens`]).
+    sheen: Vec<f32>,
+    sheen_norm: Vec<f32>,
+    sheen_amplitude: Vec<f32>,
+    sheen_s2: Vec<f32>,
+    sheen_table: Vec<u32>,
 }
 
 /// What a pixel's radiance depends on, one column per quantity, for every
@@ -79,6 +92,8 @@ pub(crate) struct PixelColumns {
     f_param: Vec<f32>,
     f_max: Vec<f32>,
     lobes: [LobeColumns; MAX_BATCHED_LOBES],
+    /// The distinct pile distributions of the pixels' lobes.
+    sheens: Vec<Arc<Sheen>>,
 }
 
 /// One pixel's constants as [`PixelColumns::new`] takes them.
@@ -125,13 +140,27 @@ impl PixelColumns {
             c.eta.push(eta);
             c.f_param.push(f_param);
             c.f_max.push(f_max);
+            let tables: [u32; MAX_BATCHED_LOBES] = std::array::from_fn(|k| match b.lobes.get(k) {
+                Some((_, BatchLobe::Sheen(sheen))) => c.sheen_index(sheen),
+                _ => 0,
+            });
             for (k, l) in c.lobes.iter_mut().enumerate() {
-                // A lobe the pixel lacks weighs 0 (its constants only keep
-                // the arithmetic finite).
+                // A lobe the pixel lacks weighs 0, and a lobe's constants of
+                // the other kind only keep the arithmetic finite.
                 let (w, (ax, ay), (sin, cos), ln_norm) = match b.lobes.get(k) {
-                    Some((w, lobe)) => (*w, lobe.alphas(), lobe.rotation(), lobe.ln_norm()),
+                    Some((w, BatchLobe::Beckmann(lobe))) => (*w, lobe.alphas(), lobe.rotation(), lobe.ln_norm()),
+                    Some((w, BatchLobe::Sheen(_))) => (*w, (1.0, 1.0), (0.0, 1.0), 0.0),
                     None => (0.0, (1.0, 1.0), (0.0, 1.0), 0.0),
                 };
+                let (is_sheen, norm, amplitude, s2) = match b.lobes.get(k) {
+                    Some((_, BatchLobe::Sheen(sh))) => (1.0, sh.norm(), sh.amplitude, sh.sharpness * sh.sharpness),
+                    _ => (0.0, 0.0, 0.0, 1.0),
+                };
+                l.sheen.push(is_sheen);
+                l.sheen_norm.push(norm);
+                l.sheen_amplitude.push(amplitude);
+                l.sheen_s2.push(s2);
+                l.sheen_table.push(tables[k]);
                 l.weight.push(w);
                 l.cos.push(cos);
                 l.sin.push(sin);
@@ -145,6 +174,17 @@ impl PixelColumns {
         c.batch_from =
             (0..batched.len()).map(|k| batched.get(k..k + LANES).is_some_and(|b| b.iter().all(|&x| x))).collect();
         c
+    }
+
+    /// The index of `sheen` in [`PixelColumns::sheens`], added if new
+    /// (pixels of one material share one distribution).
+    fn sheen_index(&mut self, sheen: &Arc<Sheen>) -> u32 {
+        let found = self.sheens.iter().rposition(|s| Arc::ptr_eq(s, sheen) || **s == **sheen);
+        let k = found.unwrap_or_else(|| {
+            self.sheens.push(sheen.clone());
+            self.sheens.len() - 1
+        });
+        k as u32
     }
 
     /// Whether the eight pixels from `k` on can be batched.
@@ -382,13 +422,29 @@ impl<'a> Surface<'a> {
         let inv_hz2 = one / (hz * hz);
         let k = self.k;
         let lobes = &self.columns.lobes[..self.n_lobes];
-        // D in each lobe's frame, in the log domain.
+        // D: a Beckmann lobe in its own frame and in the log domain; a pile
+        // distribution `N (1 + A exp(-cot^2 / s^2))` (`brdf::ndf::Sheen`).
         let mut d = zero;
         for l in lobes {
-            let (cos, sin) = (lanes(&l.cos, k), lanes(&l.sin, k));
-            let (ux, uy) = (cos * hx - sin * hy, sin * hx + cos * hy);
-            let e = (ux * ux * lanes(&l.inv_ax2, k) + uy * uy * lanes(&l.inv_ay2, k)) * inv_hz2;
-            d += lanes(&l.weight, k) * (-e - ln_hz * 4.0 - lanes(&l.ln_norm, k)).exp();
+            let sheen = lanes(&l.sheen, k).cmp_gt(zero);
+            let mut dl = zero;
+            if !sheen.all() {
+                let (cos, sin) = (lanes(&l.cos, k), lanes(&l.sin, k));
+                let (ux, uy) = (cos * hx - sin * hy, sin * hx + cos * hy);
+                let e = (ux * ux * lanes(&l.inv_ax2, k) + uy * uy * lanes(&l.inv_ay2, k)) * inv_hz2;
+                dl = (-e - ln_hz * 4.0 - lanes(&l.ln_norm, k)).exp();
+            }
+            if sheen.any() {
+                let norm = lanes(&l.sheen_norm, k);
+                let s2 = hx * hx + hy * hy;
+                let cot2 = hz * hz / s2;
+                // Beyond -80 the exponential is below 2e-35 and adds nothing
+                // to 1; the bound keeps the polynomial `exp` in its range.
+                let x = (-cot2 / lanes(&l.sheen_s2, k)).max(f32x8::splat(-80.0));
+                let ds = norm * (one + lanes(&l.sheen_amplitude, k) * x.exp());
+                dl = sheen.blend(s2.cmp_gt(zero).blend(ds, norm), dl);
+            }
+            d += lanes(&l.weight, k) * dl;
         }
         // Far from every lobe the specular term is at most `F_max D / (4 iz
         // sigma(o))` (sigma(i) >= iz); below 1e-7 of the diffuse term in
@@ -399,6 +455,13 @@ impl<'a> Surface<'a> {
         }
         let mut sigma_i = zero;
         for l in lobes {
+            let sheen = lanes(&l.sheen, k).cmp_gt(zero);
+            if sheen.any() {
+                sigma_i += lanes(&l.weight, k) * self.sheen_sigma(l, sheen, [ix, iy, iz]);
+                if sheen.all() {
+                    continue;
+                }
+            }
             let (cos, sin) = (lanes(&l.cos, k), lanes(&l.sin, k));
             // The projected area sigma(i) = iz (1 + erf(a)) / 2 + r exp(-a^2) / (2 sqrt(pi)).
             let (vx, vy) = (cos * ix - sin * iy, sin * ix + cos * iy);
@@ -417,7 +480,7 @@ impl<'a> Surface<'a> {
             let sk = (iz * 0.5 * (one + erf) + r * ea * INV_TWO_SQRT_PI).max(iz);
             // r = 0 (a = inf): the area is iz, as the formula's limit.
             let sk = r.cmp_gt(zero).blend(sk, iz);
-            sigma_i += lanes(&l.weight, k) * sk;
+            sigma_i += lanes(&l.weight, k) * sheen.blend(zero, sk);
         }
         let sigma_i = sigma_i.max(iz);
         let cos_d = (ix * hx + iy * hy + iz * hz).max(zero).min(one);
@@ -444,6 +507,25 @@ impl<'a> Surface<'a> {
 }
 
 impl Surface<'_> {
+    /// A pile distribution's projected area `sigma(i)` in the lanes set in
+    /// `sheen` (0 elsewhere): its table read at `theta_i` as
+    /// `brdf::ndf::Sheen::projected_area` reads it, one lane at a time (a
+    /// gather).
+    fn sheen_sigma(&self, l: &LobeColumns, sheen: f32x8, [ix, iy, iz]: [f32x8; 3]) -> f32x8 {
+        let theta = (ix * ix + iy * iy).sqrt().atan2(iz).to_array();
+        let (iz, lanes_set) = (iz.to_array(), sheen.move_mask());
+        let mut out = [0.0f32; LANES];
+        for (j, o) in out.iter_mut().enumerate().filter(|(j, _)| lanes_set & (1 << j) != 0) {
+            let table = self.columns.sheens[l.sheen_table[self.k + j] as usize].sigma_table();
+            let n = table.len();
+            let t = theta[j] / std::f32::consts::FRAC_PI_2 * (n - 1) as f32;
+            let at = (t as usize).min(n - 2);
+            let f = (t - at as f32).clamp(0.0, 1.0);
+            *o = (table[at] * (1.0 - f) + table[at + 1] * f).max(iz[j]);
+        }
+        f32x8::new(out)
+    }
+
     /// `brdf::fresnel::dielectric` (index `eta`) times the lanes' scale.
     #[inline]
     fn dielectric_fresnel(&self, cos_d: f32x8) -> f32x8 {

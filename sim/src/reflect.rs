@@ -14,7 +14,7 @@ use std::f32::consts::FRAC_1_PI;
 use std::sync::Arc;
 
 use brdf::fresnel::Fresnel;
-use brdf::ndf::{BeckmannLobe, Ndf};
+use brdf::ndf::{BeckmannLobe, Lobe, Ndf, Sheen};
 use brdf::{Brdf, frame};
 use glam::Vec3;
 use material::PointMaterial;
@@ -111,17 +111,27 @@ impl Reflectance {
 
     /// What the camera's batched evaluation ([`crate::batch`]) needs, if it
     /// can evaluate this reflectance: nothing, a diffuse surface, or a
-    /// microfacet surface of at most [`MAX_BATCHED_LOBES`] Beckmann lobes
-    /// (every built-in sample but velvet's pile).
+    /// microfacet surface of at most [`MAX_BATCHED_LOBES`] lobes, each a
+    /// Beckmann lobe or a pile distribution (every built-in sample).
     pub(crate) fn batched(&self) -> Option<Batched> {
         match self {
             Reflectance::Black => Some(Batched::default()),
             Reflectance::Diffuse(f) => Some(Batched { black: false, diffuse: *f, ..Batched::default() }),
             Reflectance::Microfacet(m) => {
-                let lobes = match &m.ndf {
-                    ViewedNdf::Lobes(l) if !l.is_empty() && l.len() <= MAX_BATCHED_LOBES => l,
-                    _ => return None,
+                let lobes: Vec<(f32, BatchLobe)> = match &m.ndf {
+                    ViewedNdf::Lobes(l) => l.iter().map(|&(w, b)| (w, BatchLobe::Beckmann(b))).collect(),
+                    ViewedNdf::Other(n) => n
+                        .closed_form_lobes()?
+                        .into_iter()
+                        .map(|(w, l)| match l {
+                            Lobe::Beckmann(b) => (w, BatchLobe::Beckmann(BeckmannLobe::new(&b))),
+                            Lobe::Sheen(s) => (w, BatchLobe::Sheen(Arc::new(s))),
+                        })
+                        .collect(),
                 };
+                if lobes.is_empty() || lobes.len() > MAX_BATCHED_LOBES {
+                    return None;
+                }
                 let fresnel = match m.fresnel {
                     Fresnel::One => BatchedFresnel::Schlick { f0: 1.0 },
                     Fresnel::Schlick { f0 } => BatchedFresnel::Schlick { f0: f0[m.channel.min(2)] },
@@ -139,7 +149,7 @@ impl Reflectance {
                     ks: m.ks,
                     sigma_o: m.sigma_o,
                     fresnel,
-                    lobes: lobes.clone(),
+                    lobes,
                     black: false,
                 })
             }
@@ -182,7 +192,16 @@ pub(crate) struct Batched {
     pub ks: f32,
     pub sigma_o: f32,
     pub fresnel: BatchedFresnel,
-    pub lobes: Vec<(f32, BeckmannLobe)>,
+    pub lobes: Vec<(f32, BatchLobe)>,
+}
+
+/// One lobe of a batched pixel's distribution.
+#[derive(Clone, Debug)]
+pub(crate) enum BatchLobe {
+    Beckmann(BeckmannLobe),
+    /// The pile distribution (velvet), whose projected area is read from
+    /// its own table as [`Sheen`]'s `projected_area` reads it.
+    Sheen(Arc<Sheen>),
 }
 
 impl Default for Batched {

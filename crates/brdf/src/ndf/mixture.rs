@@ -74,4 +74,36 @@ impl Ndf for Mixture {
             })
             .collect()
     }
+
+    /// The lobes when each is a single lobe of closed form (not flattened,
+    /// as [`Mixture::beckmann_lobes`]).
+    fn closed_form_lobes(&self) -> Option<Vec<(f32, super::Lobe)>> {
+        self.lobes
+            .iter()
+            .map(|(w, n)| match n.closed_form_lobes()?.as_slice() {
+                [(1.0, l)] => Some((*w, l.clone())),
+                _ => None,
+            })
+            .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::ndf::{Beckmann, Lobe, Sheen};
+
+    /// A mixture of single lobes lists them with its weights, in order; a
+    /// mixture with a lobe that is itself a mixture lists none (its sums
+    /// would be taken in another order than the renderer's).
+    #[test]
+    fn a_mixture_of_single_lobes_lists_them_and_a_nested_one_does_not() {
+        let sheen = Sheen::new(0.35, 6.0);
+        let b = Beckmann::isotropic(0.5);
+        let m = Mixture::new(vec![(0.8, Arc::new(sheen.clone()) as Arc<dyn Ndf>), (0.2, Arc::new(b))]).unwrap();
+        assert_eq!(m.closed_form_lobes(), Some(vec![(0.8, Lobe::Sheen(sheen)), (0.2, Lobe::Beckmann(b))]));
+        assert_eq!(m.beckmann_lobes(), None);
+        let nested = Mixture::new(vec![(0.5, Arc::new(m) as Arc<dyn Ndf>), (0.5, Arc::new(b))]).unwrap();
+        assert_eq!(nested.closed_form_lobes(), None);
+    }
 }

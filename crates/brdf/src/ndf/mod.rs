@@ -68,6 +68,22 @@ pub trait Ndf: Send + Sync {
     fn beckmann_lobes(&self) -> Option<Vec<(f32, Beckmann)>> {
         None
     }
+
+    /// The distribution as weighted lobes of closed form ([`Lobe`]), when
+    /// it is exactly that: one lobe, or a [`Mixture`] of single lobes. A
+    /// renderer that evaluates many pixels at once (the simulated camera's
+    /// batch) can then hold each lobe's constants as plain numbers. The
+    /// default is [`Ndf::beckmann_lobes`]'s.
+    fn closed_form_lobes(&self) -> Option<Vec<(f32, Lobe)>> {
+        Some(self.beckmann_lobes()?.into_iter().map(|(w, b)| (w, Lobe::Beckmann(b))).collect())
+    }
+}
+
+/// A lobe of [`Ndf::closed_form_lobes`].
+#[derive(Clone, Debug, PartialEq)]
+pub enum Lobe {
+    Beckmann(Beckmann),
+    Sheen(Sheen),
 }
 
 impl<N: Ndf + ?Sized> Ndf for &N {
@@ -85,6 +101,9 @@ impl<N: Ndf + ?Sized> Ndf for &N {
     }
     fn beckmann_lobes(&self) -> Option<Vec<(f32, Beckmann)>> {
         (**self).beckmann_lobes()
+    }
+    fn closed_form_lobes(&self) -> Option<Vec<(f32, Lobe)>> {
+        (**self).closed_form_lobes()
     }
 }
 
@@ -104,6 +123,9 @@ impl<N: Ndf + ?Sized> Ndf for std::sync::Arc<N> {
     fn beckmann_lobes(&self) -> Option<Vec<(f32, Beckmann)>> {
         (**self).beckmann_lobes()
     }
+    fn closed_form_lobes(&self) -> Option<Vec<(f32, Lobe)>> {
+        (**self).closed_form_lobes()
+    }
 }
 
 impl<N: Ndf + ?Sized> Ndf for Box<N> {
@@ -121,6 +143,9 @@ impl<N: Ndf + ?Sized> Ndf for Box<N> {
     }
     fn beckmann_lobes(&self) -> Option<Vec<(f32, Beckmann)>> {
         (**self).beckmann_lobes()
+    }
+    fn closed_form_lobes(&self) -> Option<Vec<(f32, Lobe)>> {
+        (**self).closed_form_lobes()
     }
 }
 

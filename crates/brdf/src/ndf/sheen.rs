@@ -75,6 +75,18 @@ impl Sheen {
         }
         Self { sharpness: s, amplitude: a, norm, sigma }
     }
+
+    /// The normalisation `N` of `D`.
+    pub fn norm(&self) -> f32 {
+        self.norm
+    }
+
+    /// The tabulated projected area: `sigma(theta_v)` at `theta_v = k /
+    /// (len - 1) * pi/2`, interpolated linearly by
+    /// [`Ndf::projected_area`].
+    pub fn sigma_table(&self) -> &[f32] {
+        &self.sigma
+    }
 }
 
 impl Ndf for Sheen {
@@ -106,5 +118,9 @@ impl Ndf for Sheen {
 
     fn pdf_h(&self, h: Vec3) -> f32 {
         frame::cosine_hemisphere_pdf(h)
+    }
+
+    fn closed_form_lobes(&self) -> Option<Vec<(f32, super::Lobe)>> {
+        Some(vec![(1.0, super::Lobe::Sheen(self.clone()))])
     }
 }
