@@ -10,10 +10,11 @@
 //! pixel at a time (`camera::Lit::radiance`, which stays as the path for
 //! every other surface and as the reference) it renders a 256 x 256 satin
 //! frame in about 5 ms on two cores. Here the same formulas run on eight
-//! pixels at once with polynomial `exp`, `ln` and `atan2` (`wide`) and Abramowitz
-//! and Stegun's `erf` (7.1.26, absolute error below 1.5e-7, sharing the
-//! `exp(-a^2)` the projected area needs anyway); the radiance agrees with
-//! the reference to a few parts in a million (tested), far below a DN.
+//! pixels at once with polynomial `exp`, `ln` and `atan2` (`wide`) and
+//! Abramowitz and Stegun's `erf` (7.1.26, absolute error below 1.5e-7,
+//! sharing the `exp(-a^2)` the projected area needs anyway); the radiance
+//! agrees with the reference to a few parts in a million (tested), far
+//! below a DN.
 //!
 //! The pixels' constant data (position, view, shadow span, reflectance)
 //! are kept as one array per quantity, so a batch is eight neighbours of a
