@@ -144,14 +144,7 @@ impl Reflectance {
                         BatchedFresnel::Conductor { eta: eta[m.channel.min(2)], k: k[m.channel.min(2)] }
                     }
                 };
-                Some(Batched {
-                    diffuse: m.diffuse,
-                    ks: m.ks,
-                    sigma_o: m.sigma_o,
-                    fresnel,
-                    lobes,
-                    black: false,
-                })
+                Some(Batched { diffuse: m.diffuse, ks: m.ks, sigma_o: m.sigma_o, fresnel, lobes, black: false })
             }
             Reflectance::General { .. } => None,
         }

@@ -278,10 +278,30 @@ impl KernelGrid {
 /// (the table's own interpolation, [`NdfGrid::bilinear`]), from the same
 /// computation of `h`'s angles.
 pub(crate) fn kernel(kg: &KernelGrid, h: Vec3, r: f32, out: &mut Vec<(u32, f32)>) -> [(u32, f32); 4] {
-    let (theta_h, phi_h) = (brdf::frame::polar(h), brdf::frame::phi(h));
-    kernel_cells(kg, h, theta_h, phi_h, r, out);
+    kernel_at(kg, &KernelAt::new(h, r), out)
+}
+
+/// [`kernel`] of a sample whose half vector's angles are known.
+pub(crate) fn kernel_at(kg: &KernelGrid, k: &KernelAt, out: &mut Vec<(u32, f32)>) -> [(u32, f32); 4] {
+    kernel_cells(kg, k.h, k.theta, k.phi, k.r, out);
     let grid = kg.grid;
-    grid.bilinear_at(theta_h, phi_h).weights(grid.n_phi as usize).map(|(c, w)| (c as u32, w))
+    grid.bilinear_at(k.theta, k.phi).weights(grid.n_phi as usize).map(|(c, w)| (c as u32, w))
+}
+
+/// A sample's half vector `h` with its polar angle and azimuth
+/// (`brdf::frame::polar` and `phi` of it), and its kernel width `r`.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct KernelAt {
+    pub(crate) h: Vec3,
+    pub(crate) theta: f32,
+    pub(crate) phi: f32,
+    pub(crate) r: f32,
+}
+
+impl KernelAt {
+    pub(crate) fn new(h: Vec3, r: f32) -> Self {
+        Self { h, theta: brdf::frame::polar(h), phi: brdf::frame::phi(h), r }
+    }
 }
 
 /// [`kernel`]'s cells, with `h`'s polar angle and azimuth given.
@@ -403,7 +423,7 @@ pub(crate) enum Kernels<'a> {
     /// Computed again at every read from each sample's half vector and
     /// kernel width: a pool's millions of samples would hold gigabytes of
     /// cells.
-    Computed { kg: &'a KernelGrid, h_r: &'a [(Vec3, f32)] },
+    Computed { kg: &'a KernelGrid, at: &'a [KernelAt] },
 }
 
 impl Kernels<'_> {
@@ -446,10 +466,9 @@ impl Kernels<'_> {
     pub(crate) fn get<'s>(&'s self, k: usize, scratch: &'s mut Vec<(u32, f32)>) -> ([(u32, f32); 4], &'s [(u32, f32)]) {
         match self {
             Kernels::Stored { cells, offsets, corners: c } => (c[k], &cells[offsets[k]..offsets[k + 1]]),
-            Kernels::Computed { kg, h_r } => {
-                let (h, r) = h_r[k];
+            Kernels::Computed { kg, at } => {
                 scratch.clear();
-                (kernel(kg, h, r, scratch), scratch.as_slice())
+                (kernel_at(kg, &at[k], scratch), scratch.as_slice())
             }
         }
     }

@@ -91,7 +91,9 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::context::FitContext;
-use crate::partial::{KernelGrid, Kernels, PointSamples, SplatLayout, Splatted, close, join, kernel, lum, point_flag};
+use crate::partial::{
+    KernelAt, KernelGrid, Kernels, PointSamples, SplatLayout, Splatted, close, join, kernel_at, lum, point_flag,
+};
 use crate::points::{PointMaps, gather};
 use crate::pushpull::push_pull;
 use crate::samples::SampleStore;
@@ -154,8 +156,11 @@ const TEST_POINTS: usize = 256;
 struct PoolSample {
     /// The light's direction located in the masking tables.
     i: MaskingCell,
-    /// Half vector.
+    /// Half vector, and its polar angle and azimuth (read by every
+    /// estimate and fit in which the member is not turned).
     h: Vec3,
+    theta: f32,
+    phi: f32,
     /// Scalar specular (luminance reflectance less the diffuse).
     spec: f32,
     /// Variance of the luminance reflectance.
@@ -165,6 +170,23 @@ struct PoolSample {
     kernel_rad: f32,
     /// `4 sigma(i) sigma(o)` under the point's own table's masking.
     own_masking: f32,
+}
+
+impl PoolSample {
+    /// Its half vector turned by `back`, with that vector's angles (its own
+    /// when `back` turns nothing) and no kernel width yet.
+    fn turned(&self, back: Unturn) -> KernelAt {
+        match back.0 {
+            None => KernelAt { h: self.h, theta: self.theta, phi: self.phi, r: 0.0 },
+            Some(_) => KernelAt::new(back.apply(self.h), 0.0),
+        }
+    }
+
+    /// `table` at its half vector turned by `back` (`NdfTable::eval`).
+    fn read(&self, table: &NdfTable, back: Unturn) -> f32 {
+        let k = self.turned(back);
+        if k.h.z < 0.0 { 0.0 } else { table.eval_at(table.grid().bilinear_at(k.theta, k.phi)) }
+    }
 }
 
 /// One member's samples and the per-point quantities that turn them into
@@ -324,8 +346,11 @@ fn split(
 
 /// The angular size of the table's cell around `h` (the larger of its
 /// extents in theta and in phi).
-fn cell_angle(grid: brdf::ndf::NdfGrid, h: Vec3) -> f32 {
-    let Some((t, _)) = grid.cell(h) else { return grid.theta_edge(1) };
+fn cell_angle(grid: brdf::ndf::NdfGrid, k: &KernelAt) -> f32 {
+    if k.h.z < 0.0 {
+        return grid.theta_edge(1);
+    }
+    let (t, _) = grid.cell_at(k.theta, k.phi);
     let dt = grid.theta_edge(t + 1) - grid.theta_edge(t);
     let dp = grid.dphi() * grid.theta_center(t).sin();
     dt.max(dp)
@@ -338,10 +363,10 @@ const MAX_STORED_CELLS: usize = 1 << 24;
 /// Every sample's kernel cells, offsets and corners, computed once; `None`
 /// when they would be more than [`MAX_STORED_CELLS`].
 #[allow(clippy::type_complexity)]
-fn store_kernels(kg: &KernelGrid, h_r: &[(Vec3, f32)]) -> Option<(Vec<(u32, f32)>, Vec<usize>, Vec<[(u32, f32); 4]>)> {
-    let (mut cells, mut offsets, mut corners) = (Vec::new(), vec![0], Vec::with_capacity(h_r.len()));
-    for &(h, r) in h_r {
-        let c = kernel(kg, h, r, &mut cells);
+fn store_kernels(kg: &KernelGrid, at: &[KernelAt]) -> Option<(Vec<(u32, f32)>, Vec<usize>, Vec<[(u32, f32); 4]>)> {
+    let (mut cells, mut offsets, mut corners) = (Vec::new(), vec![0], Vec::with_capacity(at.len()));
+    for k in at {
+        let c = kernel_at(kg, k, &mut cells);
         if cells.len() > MAX_STORED_CELLS {
             return None;
         }
@@ -455,22 +480,22 @@ fn estimate_turned(
         Some(axis) => cluster.iter().map(|&j| members[j].axis.map_or(0.0, |a| axis_turn(a, axis))).collect(),
         None => vec![0.0; cluster.len()],
     });
-    let h_r: Vec<(Vec3, f32)> = cluster
+    let at: Vec<KernelAt> = cluster
         .iter()
         .zip(&turns)
         .flat_map(|(&j, &turn)| members[j].samples.iter().map(move |x| (x, Unturn::new(turn))))
         .map(|(x, turn)| {
-            let h = turn.apply(x.h);
-            let r = (x.kernel_rad * shrink).max(MIN_KERNEL_CELLS * cell_angle(grid, h)).max(crate::tol::MIN_KERNEL_RAD);
-            (h, r)
+            let mut k = x.turned(turn);
+            k.r = (x.kernel_rad * shrink).max(MIN_KERNEL_CELLS * cell_angle(grid, &k)).max(crate::tol::MIN_KERNEL_RAD);
+            k
         })
         .collect();
-    let stored = store_kernels(&kg, &h_r);
+    let stored = store_kernels(&kg, &at);
     let kernels = match &stored {
         Some((cells, offsets, corners)) => Kernels::Stored { cells, offsets, corners },
-        None => Kernels::Computed { kg: &kg, h_r: &h_r },
+        None => Kernels::Computed { kg: &kg, at: &at },
     };
-    let [sum_k, _] = kernels.sums(grid, h_r.len(), |k, scratch, [sum_k, _]| {
+    let [sum_k, _] = kernels.sums(grid, at.len(), |k, scratch, [sum_k, _]| {
         for &(c, w) in kernels.get(k, scratch).1 {
             sum_k[c as usize] += w as f64;
         }
@@ -625,6 +650,8 @@ impl Member {
                 PoolSample {
                     i,
                     h,
+                    theta: brdf::frame::polar(h),
+                    phi: brdf::frame::phi(h),
                     spec: lum([x.rho[0] - rho_d[0], x.rho[1] - rho_d[1], x.rho[2] - rho_d[2]]),
                     var: x.var,
                     fresnel: (fresnel::dielectric(x.i.dot(h), eta) / f0).max(crate::tol::MIN_FRESNEL_RATIO),
@@ -724,18 +751,15 @@ const FINE_STEPS: i32 = 4;
 /// puts several degrees off. `coarse` searches +-20 degrees first; the
 /// fine search alone is +-2.
 fn refine_turn(mb: &Member, table: &NdfTable, turn: f32, coarse: bool) -> f32 {
-    // Each sample's polar angle and azimuth once; a turn only shifts the
-    // azimuth at which the table is read. `(theta, phi, s, w, f/denom)`.
+    // A turn only shifts the azimuth at which the table is read.
+    // `(theta, phi, s, w, f/denom)`.
     let grid = table.grid();
     let np = grid.n_phi as usize;
     let read: Vec<(f32, f32, f64, f64, f32)> = mb
         .samples
         .iter()
         .filter(|x| x.own_masking > 0.0 && x.h.z >= 0.0)
-        .map(|x| {
-            let h = x.h;
-            (brdf::frame::polar(h), brdf::frame::phi(h), x.spec as f64, 1.0 / x.var as f64, x.fresnel / x.own_masking)
-        })
+        .map(|x| (x.theta, x.phi, x.spec as f64, 1.0 / x.var as f64, x.fresnel / x.own_masking))
         .collect();
     let score = |t: f32| {
         let v = table.values();
@@ -806,8 +830,7 @@ impl Fit {
         let mut f = Fit::default();
         let back = Unturn::new(turn);
         for (x, denom) in mb.samples.iter().zip(masking) {
-            let h = back.apply(x.h);
-            let g = if denom > 0.0 { (table.eval(h) * x.fresnel / denom) as f64 } else { 0.0 };
+            let g = if denom > 0.0 { (x.read(table, back) * x.fresnel / denom) as f64 } else { 0.0 };
             let (s, w) = (x.spec as f64, 1.0 / x.var as f64);
             f.ss += w * s * s;
             f.sg += w * s * g;

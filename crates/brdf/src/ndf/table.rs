@@ -210,10 +210,16 @@ impl NdfGrid {
         if h.z < 0.0 {
             return None;
         }
-        let (u, p) = self.coords(h);
+        Some(self.cell_at(frame::polar(h), frame::phi(h)))
+    }
+
+    /// [`NdfGrid::cell`] of a direction at or above the horizon, from its
+    /// polar angle and azimuth.
+    pub fn cell_at(&self, theta: f32, phi: f32) -> (usize, usize) {
+        let (u, p) = self.coords_at(theta, phi);
         let t = (u as usize).min(self.n_theta as usize - 1);
         let p = (p as usize) % self.n_phi as usize;
-        Some((t, p))
+        (t, p)
     }
 }
 
@@ -421,7 +427,13 @@ impl NdfTable {
         if h.z < 0.0 {
             return 0.0;
         }
-        let Bilinear { t, ft, p, fp } = self.grid.bilinear(h);
+        self.eval_at(self.grid.bilinear(h))
+    }
+
+    /// [`NdfTable::eval`] of a direction at or above the horizon whose
+    /// interpolation (`NdfGrid::bilinear`) the caller has.
+    pub fn eval_at(&self, b: Bilinear) -> f32 {
+        let Bilinear { t, ft, p, fp } = b;
         let np = self.grid.n_phi as usize;
         let v = |t: usize, p: usize| self.values[t * np + p];
         let a = v(t[0], p[0]) * (1.0 - fp) + v(t[0], p[1]) * fp;
@@ -493,6 +505,22 @@ pub const MIN_NORMALISABLE: f32 = 1e-12;
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A caller that has a direction's angles reads the same cell and the
+    /// same value, to the bit, as one that has only the direction.
+    #[test]
+    fn reading_from_known_angles_is_reading_from_the_direction() {
+        let g = NdfGrid::new(16, 48).unwrap();
+        let values = (0..g.len()).map(|c| ((c * 7919) % 101) as f32 / 17.0).collect();
+        let t = NdfTable::from_values(g, values, Coverage::full(g.len())).unwrap();
+        for k in 0..2000 {
+            let (theta, phi) = (k as f32 * 0.000_785 % FRAC_PI_2, k as f32 * 0.0377);
+            let h = frame::spherical(theta, phi);
+            let (th, ph) = (frame::polar(h), frame::phi(h));
+            assert_eq!(Some(g.cell_at(th, ph)), g.cell(h), "{h}");
+            assert_eq!(t.eval_at(g.bilinear_at(th, ph)).to_bits(), t.eval(h).to_bits(), "{h}");
+        }
+    }
 
     #[test]
     fn a_shift_splits_into_whole_sectors_around_the_ring_and_a_fraction() {
