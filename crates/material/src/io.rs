@@ -183,8 +183,9 @@ fn write_atlas(path: &Path, t: &TableSet, grid: setup::PointGrid) -> Result<(), 
     let (w, h) = (cols * side, rows * side);
     let mut d = vec![f16::ZERO; w * h];
     let mut observed = vec![f16::ZERO; w * h];
-    // Each tile pixel's half vector, once.
-    let dirs: Vec<Option<(glam::Vec3, usize)>> = (0..side * side)
+    // Each tile pixel's interpolation (`NdfTable::eval` at its half
+    // vector, which is above the horizon) and cell, once.
+    let dirs: Vec<Option<(brdf::ndf::Bilinear, usize)>> = (0..side * side)
         .map(|k| {
             let (x, y) = (k % side, k / side);
             let u = 2.0 * (x as f32 + 0.5) / side as f32 - 1.0;
@@ -197,16 +198,16 @@ fn write_atlas(path: &Path, t: &TableSet, grid: setup::PointGrid) -> Result<(), 
             let phi = v.atan2(u);
             let hv = glam::Vec3::new(theta.sin() * phi.cos(), theta.sin() * phi.sin(), theta.cos());
             let (ti, pi) = g.cell(hv)?;
-            Some((hv, g.index(ti, pi)))
+            Some((g.bilinear(hv), g.index(ti, pi)))
         })
         .collect();
     for p in 0..t.len() {
         let table = t.get(p);
         let (tx, ty) = ((p % cols) * side, (p / cols) * side);
         for (k, dir) in dirs.iter().enumerate() {
-            let Some((hv, cell)) = dir else { continue };
+            let Some((bilinear, cell)) = dir else { continue };
             let at = (ty + k / side) * w + tx + k % side;
-            d[at] = f16::from_f32(table.eval(*hv));
+            d[at] = f16::from_f32(table.eval_at(*bilinear));
             observed[at] = f16::from_f32(if table.coverage().get(*cell) { 1.0 } else { 0.0 });
         }
     }
