@@ -24,11 +24,12 @@ pub fn push_pull(nt: usize, np: usize, values: &mut [f32], weight: &[f32], fill:
         for a in 0..ct {
             for b in 0..cp {
                 let (mut sw, mut swv) = (0.0f32, 0.0f32);
-                // The children's sectors `2b` and `2b + 1` (the latter
-                // wrapping to 0 past the last; `2b < p` always).
-                let (p0, p1) = (2 * b, if 2 * b + 1 >= *p { 2 * b + 1 - *p } else { 2 * b + 1 });
-                for ta in (2 * a..2 * a + 2).filter(|&ta| ta < *t) {
-                    for pb in [p0, p1] {
+                for da in 0..2 {
+                    for db in 0..2 {
+                        let (ta, pb) = (2 * a + da, (2 * b + db) % p);
+                        if ta >= *t {
+                            continue;
+                        }
                         let k = ta * p + pb;
                         sw += w[k];
                         swv += w[k] * v[k];
@@ -45,9 +46,9 @@ pub fn push_pull(nt: usize, np: usize, values: &mut [f32], weight: &[f32], fill:
     }
     // Push back down, blending each level with its parent.
     for l in (0..levels.len() - 1).rev() {
-        let (finer, coarser) = levels.split_at_mut(l + 1);
-        let (pt, pp, parent) = (coarser[0].0, coarser[0].1, &coarser[0].2);
-        let (t, p, v, w) = &mut finer[l];
+        let (pt, pp) = (levels[l + 1].0, levels[l + 1].1);
+        let parent = levels[l + 1].2.clone();
+        let (t, p, v, w) = &mut levels[l];
         for a in 0..*t {
             for b in 0..*p {
                 let k = a * *p + b;
