@@ -156,11 +156,8 @@ const TEST_POINTS: usize = 256;
 struct PoolSample {
     /// The light's direction located in the masking tables.
     i: MaskingCell,
-    /// Half vector, and its polar angle and azimuth (read by every
-    /// estimate and fit in which the member is not turned).
+    /// Half vector.
     h: Vec3,
-    theta: f32,
-    phi: f32,
     /// Scalar specular (luminance reflectance less the diffuse).
     spec: f32,
     /// Variance of the luminance reflectance.
@@ -172,21 +169,10 @@ struct PoolSample {
     own_masking: f32,
 }
 
-impl PoolSample {
-    /// Its half vector turned by `back`, with that vector's angles (its own
-    /// when `back` turns nothing) and no kernel width yet.
-    fn turned(&self, back: Unturn) -> KernelAt {
-        match back.0 {
-            None => KernelAt { h: self.h, theta: self.theta, phi: self.phi, r: 0.0 },
-            Some(_) => KernelAt::new(back.apply(self.h), 0.0),
-        }
-    }
-
-    /// `table` at its half vector turned by `back` (`NdfTable::eval`).
-    fn read(&self, table: &NdfTable, back: Unturn) -> f32 {
-        let k = self.turned(back);
-        if k.h.z < 0.0 { 0.0 } else { table.eval_at(table.grid().bilinear_at(k.theta, k.phi)) }
-    }
+/// `table` at a sample's half vector (`NdfTable::eval`, from the angles
+/// the kernel has).
+fn read(table: &NdfTable, k: &KernelAt) -> f32 {
+    if k.h.z < 0.0 { 0.0 } else { table.eval_at(table.grid().bilinear_at(k.theta, k.phi)) }
 }
 
 /// One member's samples and the per-point quantities that turn them into
@@ -485,9 +471,20 @@ fn estimate_turned(
         .zip(&turns)
         .flat_map(|(&j, &turn)| members[j].samples.iter().map(move |x| (x, Unturn::new(turn))))
         .map(|(x, turn)| {
-            let mut k = x.turned(turn);
+            // The turned half vector's angles, once for the kernel, the
+            // cell size and every round's fit.
+            let mut k = KernelAt::new(turn.apply(x.h), 0.0);
             k.r = (x.kernel_rad * shrink).max(MIN_KERNEL_CELLS * cell_angle(grid, &k)).max(crate::tol::MIN_KERNEL_RAD);
             k
+        })
+        .collect();
+    // Where each member's samples start in `at`.
+    let starts: Vec<usize> = cluster
+        .iter()
+        .scan(0, |n, &j| {
+            let start = *n;
+            *n += members[j].samples.len();
+            Some(start)
         })
         .collect();
     let stored = store_kernels(&kg, &at);
@@ -569,14 +566,16 @@ fn estimate_turned(
             .par_iter()
             .zip(&turns)
             .zip(&lights)
-            .map(|((&j, &turn), lights)| {
+            .zip(&starts)
+            .map(|(((&j, &turn), lights), &start)| {
                 let mb = &members[j];
                 let sigma_o = m.projected_area(Unturn::new(turn).apply(mb.o));
                 let masking: Vec<f32> = match lights {
                     None => mb.samples.iter().map(|x| 4.0 * m.projected_area_at(&x.i) * sigma_o).collect(),
                     Some(cells) => cells.iter().map(|c| 4.0 * m.projected_area_at(c) * sigma_o).collect(),
                 };
-                (Fit::with(mb, &table, turn, masking.iter().copied()), masking)
+                let halves = &at[start..start + mb.samples.len()];
+                (Fit::with(mb, &table, halves.iter().copied(), masking.iter().copied()), masking)
             })
             .unzip();
         k_s.iter_mut().zip(&fits).for_each(|(k_s, f)| {
@@ -650,8 +649,6 @@ impl Member {
                 PoolSample {
                     i,
                     h,
-                    theta: brdf::frame::polar(h),
-                    phi: brdf::frame::phi(h),
                     spec: lum([x.rho[0] - rho_d[0], x.rho[1] - rho_d[1], x.rho[2] - rho_d[2]]),
                     var: x.var,
                     fresnel: (fresnel::dielectric(x.i.dot(h), eta) / f0).max(crate::tol::MIN_FRESNEL_RATIO),
@@ -751,15 +748,18 @@ const FINE_STEPS: i32 = 4;
 /// puts several degrees off. `coarse` searches +-20 degrees first; the
 /// fine search alone is +-2.
 fn refine_turn(mb: &Member, table: &NdfTable, turn: f32, coarse: bool) -> f32 {
-    // A turn only shifts the azimuth at which the table is read.
-    // `(theta, phi, s, w, f/denom)`.
+    // Each sample's polar angle and azimuth once; a turn only shifts the
+    // azimuth at which the table is read. `(theta, phi, s, w, f/denom)`.
     let grid = table.grid();
     let np = grid.n_phi as usize;
     let read: Vec<(f32, f32, f64, f64, f32)> = mb
         .samples
         .iter()
         .filter(|x| x.own_masking > 0.0 && x.h.z >= 0.0)
-        .map(|x| (x.theta, x.phi, x.spec as f64, 1.0 / x.var as f64, x.fresnel / x.own_masking))
+        .map(|x| {
+            let h = x.h;
+            (brdf::frame::polar(h), brdf::frame::phi(h), x.spec as f64, 1.0 / x.var as f64, x.fresnel / x.own_masking)
+        })
         .collect();
     let score = |t: f32| {
         let v = table.values();
@@ -815,22 +815,32 @@ struct Fit {
 impl Fit {
     fn of(mb: &Member, table: &NdfTable, m: &MaskingTable) -> Self {
         let sigma_o = m.projected_area(mb.o);
-        Self::with(mb, table, 0.0, mb.samples.iter().map(|x| 4.0 * m.projected_area_at(&x.i) * sigma_o))
+        Self::with(mb, table, Self::unturned(mb), mb.samples.iter().map(|x| 4.0 * m.projected_area_at(&x.i) * sigma_o))
+    }
+
+    /// A member's half vectors, not turned.
+    fn unturned(mb: &Member) -> impl Iterator<Item = KernelAt> + '_ {
+        mb.samples.iter().map(|x| KernelAt::new(x.h, 0.0))
     }
 
     /// The same under the point's own table's masking, which the member
     /// keeps per sample.
     fn own(mb: &Member, table: &NdfTable) -> Self {
-        Self::with(mb, table, 0.0, mb.samples.iter().map(|x| x.own_masking))
+        Self::with(mb, table, Self::unturned(mb), mb.samples.iter().map(|x| x.own_masking))
     }
 
-    /// The sums with `table` turned by `turn` about the normal and the
-    /// `k`-th of `masking` sample `k`'s `4 sigma(i) sigma(o)`.
-    fn with(mb: &Member, table: &NdfTable, turn: f32, masking: impl Iterator<Item = f32>) -> Self {
+    /// The sums with `table` read at the `k`-th of `halves` (sample `k`'s
+    /// half vector, turned as the member is) and the `k`-th of `masking`
+    /// sample `k`'s `4 sigma(i) sigma(o)`.
+    fn with(
+        mb: &Member,
+        table: &NdfTable,
+        halves: impl Iterator<Item = KernelAt>,
+        masking: impl Iterator<Item = f32>,
+    ) -> Self {
         let mut f = Fit::default();
-        let back = Unturn::new(turn);
-        for (x, denom) in mb.samples.iter().zip(masking) {
-            let g = if denom > 0.0 { (x.read(table, back) * x.fresnel / denom) as f64 } else { 0.0 };
+        for ((x, h), denom) in mb.samples.iter().zip(halves).zip(masking) {
+            let g = if denom > 0.0 { (read(table, &h) * x.fresnel / denom) as f64 } else { 0.0 };
             let (s, w) = (x.spec as f64, 1.0 / x.var as f64);
             f.ss += w * s * s;
             f.sg += w * s * g;
