@@ -148,14 +148,16 @@ impl PixelColumns {
             for (k, l) in c.lobes.iter_mut().enumerate() {
                 // A lobe the pixel lacks weighs 0, and a lobe's constants of
                 // the other kind only keep the arithmetic finite.
-                let (w, (ax, ay), (sin, cos), ln_norm) = match b.lobes.get(k) {
-                    Some((w, BatchLobe::Beckmann(lobe))) => (*w, lobe.alphas(), lobe.rotation(), lobe.ln_norm()),
-                    Some((w, BatchLobe::Sheen(_))) => (*w, (1.0, 1.0), (0.0, 1.0), 0.0),
-                    None => (0.0, (1.0, 1.0), (0.0, 1.0), 0.0),
-                };
-                let (is_sheen, norm, amplitude, s2) = match b.lobes.get(k) {
-                    Some((_, BatchLobe::Sheen(sh))) => (1.0, sh.norm(), sh.amplitude, sh.sharpness * sh.sharpness),
-                    _ => (0.0, 0.0, 0.0, 1.0),
+                let beckmann = ((1.0, 1.0), (0.0, 1.0), 0.0);
+                let sheen = (0.0, 0.0, 0.0, 1.0);
+                let (w, ((ax, ay), (sin, cos), ln_norm), (is_sheen, norm, amplitude, s2)) = match b.lobes.get(k) {
+                    Some((w, BatchLobe::Beckmann(lobe))) => {
+                        (*w, (lobe.alphas(), lobe.rotation(), lobe.ln_norm()), sheen)
+                    }
+                    Some((w, BatchLobe::Sheen(sh))) => {
+                        (*w, beckmann, (1.0, sh.norm(), sh.amplitude, sh.sharpness * sh.sharpness))
+                    }
+                    None => (0.0, beckmann, sheen),
                 };
                 l.sheen.push(is_sheen);
                 l.sheen_norm.push(norm);
@@ -509,20 +511,15 @@ impl<'a> Surface<'a> {
 
 impl Surface<'_> {
     /// A pile distribution's projected area `sigma(i)` in the lanes set in
-    /// `sheen` (0 elsewhere): its table read at `theta_i` as
-    /// `brdf::ndf::Sheen::projected_area` reads it, one lane at a time (a
-    /// gather).
+    /// `sheen` (0 elsewhere): `theta_i` eight at a time, then each lane's
+    /// table read one lane at a time (a gather) by
+    /// `brdf::ndf::Sheen::projected_area_at`.
     fn sheen_sigma(&self, l: &LobeColumns, sheen: f32x8, [ix, iy, iz]: [f32x8; 3]) -> f32x8 {
         let theta = (ix * ix + iy * iy).sqrt().atan2(iz).to_array();
         let (iz, lanes_set) = (iz.to_array(), sheen.move_mask());
         let mut out = [0.0f32; LANES];
         for (j, o) in out.iter_mut().enumerate().filter(|(j, _)| lanes_set & (1 << j) != 0) {
-            let table = self.columns.sheens[l.sheen_table[self.k + j] as usize].sigma_table();
-            let n = table.len();
-            let t = theta[j] / std::f32::consts::FRAC_PI_2 * (n - 1) as f32;
-            let at = (t as usize).min(n - 2);
-            let f = (t - at as f32).clamp(0.0, 1.0);
-            *o = (table[at] * (1.0 - f) + table[at + 1] * f).max(iz[j]);
+            *o = self.columns.sheens[l.sheen_table[self.k + j] as usize].projected_area_at(theta[j], iz[j]);
         }
         f32x8::new(out)
     }

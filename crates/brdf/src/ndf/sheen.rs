@@ -81,11 +81,15 @@ impl Sheen {
         self.norm
     }
 
-    /// The tabulated projected area: `sigma(theta_v)` at `theta_v = k /
-    /// (len - 1) * pi/2`, interpolated linearly by
-    /// [`Ndf::projected_area`].
-    pub fn sigma_table(&self) -> &[f32] {
-        &self.sigma
+    /// The projected area of a direction above the surface from its polar
+    /// angle `theta_v` and its `cos(theta_v)` (`v_z`): the table, linearly
+    /// interpolated, and never less than `v_z`. [`Ndf::projected_area`]
+    /// and a renderer with the angle at hand read it here.
+    pub fn projected_area_at(&self, theta_v: f32, v_z: f32) -> f32 {
+        let t = theta_v / FRAC_PI_2 * (SIGMA_SAMPLES - 1) as f32;
+        let j = (t as usize).min(SIGMA_SAMPLES - 2);
+        let f = (t - j as f32).clamp(0.0, 1.0);
+        (self.sigma[j] * (1.0 - f) + self.sigma[j + 1] * f).max(v_z)
     }
 }
 
@@ -106,10 +110,7 @@ impl Ndf for Sheen {
         if v.z <= 0.0 {
             return 1.0;
         }
-        let t = frame::sin2_theta(v).sqrt().atan2(v.z) / FRAC_PI_2 * (SIGMA_SAMPLES - 1) as f32;
-        let j = (t as usize).min(SIGMA_SAMPLES - 2);
-        let f = (t - j as f32).clamp(0.0, 1.0);
-        (self.sigma[j] * (1.0 - f) + self.sigma[j + 1] * f).max(v.z)
+        self.projected_area_at(frame::sin2_theta(v).sqrt().atan2(v.z), v.z)
     }
 
     fn sample_h(&self, u: Vec2) -> Vec3 {
