@@ -108,6 +108,16 @@ pub struct ModelScore {
     /// mass is off by it).
     pub ndf_shape_observed: Option<f64>,
     pub ndf_scale_observed: Option<f64>,
+    /// Where the normalisation offset comes from: the share of the true
+    /// NDF's mass (its integral against `cos theta_h`, 1 over the
+    /// hemisphere) on the cells the fit did not observe, and the fitted
+    /// table's share there (what synthesis added). The table's observed
+    /// cells are too high by about the shortfall of the second.
+    pub ndf_true_mass_unobserved: Option<f64>,
+    pub ndf_mass_unobserved: Option<f64>,
+    /// The true NDF's share on the cells the fitted table leaves empty
+    /// (neither observed nor completed).
+    pub ndf_true_mass_uncovered: Option<f64>,
     /// The same three against the truth the point's samples measure: the
     /// true NDFs of every sensor pixel its value is read from, weighted as
     /// the demosaic and the bilinear read weight them (its footprint on the
@@ -247,6 +257,9 @@ struct NdfErrors {
     full: Option<f64>,
     shape_observed: Option<f64>,
     scale_observed: Option<f64>,
+    true_mass_unobserved: Option<f64>,
+    mass_unobserved: Option<f64>,
+    true_mass_uncovered: Option<f64>,
 }
 
 /// The true NDF tables the NDF errors compare with, per scored point (up
@@ -301,8 +314,9 @@ fn ndf_errors(
     let tables = if footprint { &truth.footprint } else { &truth.centre };
     // Per point, in the table's cosine measure: on the observed cells
     // sum (a-b)^2, sum b^2, the best-scale residual, sum ab, sum aa; then
-    // over the hemisphere sum (a-b)^2, sum b^2.
-    let sums: Vec<[f64; 7]> = truth
+    // over the hemisphere sum (a-b)^2, sum b^2; then the masses sum b and
+    // sum a off the observed cells, sum b off the table's coverage.
+    let sums: Vec<[f64; 10]> = truth
         .points
         .iter()
         .zip(tables)
@@ -311,12 +325,19 @@ fn ndf_errors(
             let est = set.get(p);
             let obs = observed_set.get(p);
             let also = also_observed.map(|o| o.get(p));
-            let mut x = [0.0f64; 7];
+            let mut x = [0.0f64; 10];
             for (k, (&a, &b)) in est.values().iter().zip(t.values()).enumerate() {
                 let w = grid.cos_measure(k / np) as f64;
                 let (a, b) = (a as f64, b as f64);
                 x[5] += w * (a - b) * (a - b);
                 x[6] += w * b * b;
+                if !obs.coverage().get(k) {
+                    x[7] += w * b;
+                    x[8] += w * a;
+                }
+                if !est.coverage().get(k) {
+                    x[9] += w * b;
+                }
                 if obs.coverage().get(k) && also.as_ref().is_none_or(|o| o.coverage().get(k)) {
                     x[0] += w * (a - b) * (a - b);
                     x[1] += w * b * b;
@@ -329,7 +350,8 @@ fn ndf_errors(
             Some(x)
         })
         .collect();
-    let mut tot = [0.0f64; 7];
+    let mut tot = [0.0f64; 10];
+    let n = sums.len();
     for x in &sums {
         tot.iter_mut().zip(x).for_each(|(t, v)| *t += v);
     }
@@ -339,6 +361,9 @@ fn ndf_errors(
         full: rel(tot[5], tot[6]),
         shape_observed: rel(tot[2], tot[1]),
         scale_observed: (tot[4] > 0.0).then(|| tot[3] / tot[4]),
+        true_mass_unobserved: (n > 0).then(|| tot[7] / n as f64),
+        mass_unobserved: (n > 0).then(|| tot[8] / n as f64),
+        true_mass_uncovered: (n > 0).then(|| tot[9] / n as f64),
     }
 }
 
@@ -507,6 +532,9 @@ pub fn evaluate(dir: &Path, opts: &EvalOptions, rep: &mut dyn Progress) -> Resul
                 score.ndf_rel_l2_full = e.full;
                 score.ndf_shape_observed = e.shape_observed;
                 score.ndf_scale_observed = e.scale_observed;
+                score.ndf_true_mass_unobserved = e.true_mass_unobserved;
+                score.ndf_mass_unobserved = e.mass_unobserved;
+                score.ndf_true_mass_uncovered = e.true_mass_uncovered;
                 let e = ndf_errors(&m, choice, tt, true, other.as_ref());
                 score.ndf_rel_l2_observed_footprint = e.observed;
                 score.ndf_rel_l2_full_footprint = e.full;

@@ -15,6 +15,10 @@
 //! A second pass matches against the completed tables, so coverage grows
 //! from points that can borrow from points that already did.
 //!
+//! **Tail** ([`tail`]): after the passes, the cells no match covered take a
+//! lobe fitted to the rest of the table (`SynthSettings::tail`), so that
+//! normalising does not move their mass onto the observed cells.
+//!
 //! **Search modes** (the talk's speed-ups, each measured by
 //! `refl bench synthesis`):
 //! - [`SearchMode::BruteForce`]: every other point at every rotation, `N^2 M`.
@@ -30,6 +34,7 @@ pub mod cluster;
 pub mod descriptor;
 pub mod fill;
 pub mod score;
+pub mod tail;
 
 use std::num::NonZero;
 use std::time::Instant;
@@ -67,6 +72,14 @@ pub struct SynthSettings {
     /// Passes (the second matches against completed tables).
     pub passes: u32,
     pub seed: u64,
+    /// Fill the cells no match covered from a lobe fitted to the rest
+    /// ([`tail`]); off, they stay empty (0).
+    #[serde(default = "filled_tail")]
+    pub tail: bool,
+}
+
+fn filled_tail() -> bool {
+    true
 }
 
 impl Default for SynthSettings {
@@ -81,6 +94,7 @@ impl Default for SynthSettings {
             neighbours: 48,
             passes: 2,
             seed: 1,
+            tail: true,
         }
     }
 }
@@ -99,6 +113,12 @@ pub struct SynthStats {
     pub cluster_seconds: f64,
     pub search_seconds: f64,
     pub fill_seconds: f64,
+    /// Points whose empty cells took a fitted tail ([`tail`]), and the mean
+    /// share of their table's mass the tails hold.
+    #[serde(default)]
+    pub tail_filled: usize,
+    #[serde(default)]
+    pub mean_tail_mass: f64,
 }
 
 #[derive(Clone, Debug)]
@@ -305,6 +325,23 @@ pub fn synthesize_watched(
     let after: Vec<f64> = points.iter().map(|&p| coverage_measure(&tables.get(p))).collect();
     stats.completed = before.iter().zip(&after).filter(|(b, a)| a > b).count();
     stats.mean_added_coverage = before.iter().zip(&after).map(|(b, a)| a - b).sum::<f64>() / points.len() as f64;
+    if s.tail {
+        let t = Instant::now();
+        let filled: Vec<Option<NdfTable>> = points.par_iter().map(|&p| tail::fill(&tables.get(p))).collect();
+        let mut tail_mass = 0.0;
+        for (&p, f) in points.iter().zip(filled) {
+            let Some(mut f) = f else { continue };
+            let k = f.normalize();
+            if k > 0.0 {
+                mass[p] *= k;
+                tables.set(p, &f);
+                tail_mass += f64::from(1.0 - 1.0 / k);
+                stats.tail_filled += 1;
+            }
+        }
+        stats.mean_tail_mass = if stats.tail_filled > 0 { tail_mass / stats.tail_filled as f64 } else { 0.0 };
+        stats.fill_seconds += t.elapsed().as_secs_f64();
+    }
     SynthOutput { tables, mass_factor: mass, stats }
 }
 
