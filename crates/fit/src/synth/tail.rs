@@ -16,16 +16,11 @@
 //! quadratic, whose tail is far heavier. Each is fitted by weighted linear
 //! least squares to the lobe's body: the covered cells holding at least
 //! [`MIN_RELATIVE`] of the peak and joined to it, each weighted by its mass
-//! (`D cos theta dw`). The form that describes the body better (the smaller
-//! mass-weighted squared error of `ln D`) fills the empty cells, provided it
-//! meets the table where the two join: the covered cells beside the empty
-//! ones must lie within a factor of two of it (their least-squares scale
-//! against it). Otherwise the table is not such a lobe where it meets its
-//! empty cells, and they stay empty rather than take a guess. No filled
-//! value exceeds the table's largest covered one. Choosing by the border
-//! instead let a Beckmann lobe take GGX's heavy tail, whose blurred border
-//! it matched better (balanced ward: 18% of the mass off the observed cells
-//! against the truth's 6.6%).
+//! (`D cos theta dw`). The form whose level on the covered cells beside the
+//! empty ones (their least-squares scale against it) is nearer 1 fills
+//! them; if neither is within a factor of two there, the table is not such
+//! a lobe where it meets its empty cells, and they stay empty rather than
+//! take a guess. No filled value exceeds the table's largest covered one.
 
 use brdf::ndf::NdfTable;
 use nalgebra::{Matrix6, Vector6};
@@ -164,29 +159,24 @@ pub fn fill(table: &NdfTable) -> Option<NdfTable> {
     }
     let empty = |c: usize| !cov.get(c) && slopes[c].is_some();
     let border: Vec<usize> = cov.iter_set().filter(|&c| neighbours(c).any(empty)).collect();
-    // Each form fitted; the one that describes the body better (the
-    // smaller mass-weighted squared error of ln D: the same six parameters
-    // each) fills, if it meets the table at its border within LEVEL_RANGE.
+    // Each form fitted; the one that meets the table at its border more
+    // closely (its level there nearer 1) fills, if within LEVEL_RANGE.
     let slopes = &slopes;
-    let (form, q, _) = [Form::Beckmann, Form::Ggx]
+    let (lobe, _) = [Form::Beckmann, Form::Ggx]
         .into_iter()
         .filter_map(|form| {
             let q = form.fit(&cells)?;
-            let misfit: f64 =
-                cells.iter().map(|&(dc4, x, y, mass, _)| mass * (dc4.ln() - form.eval(&q, x, y).ln()).powi(2)).sum();
-            misfit.is_finite().then_some((form, q, misfit))
+            let lobe = move |c: usize| slopes[c].map_or(0.0, |(c4, x, y)| form.eval(&q, x, y) / c4);
+            let (mut sab, mut sbb) = (0.0f64, 0.0f64);
+            for &c in &border {
+                let (l, w) = (lobe(c), g.cos_measure(c / np) as f64);
+                sab += w * l * values[c] as f64;
+                sbb += w * l * l;
+            }
+            let level = if sbb > 0.0 { sab / sbb } else { 1.0 };
+            (LEVEL_RANGE.0..=LEVEL_RANGE.1).contains(&level).then_some((lobe, level.ln().abs()))
         })
-        .min_by(|a, b| a.2.total_cmp(&b.2))?;
-    let lobe = |c: usize| slopes[c].map_or(0.0, |(c4, x, y)| form.eval(&q, x, y) / c4);
-    let (mut sab, mut sbb) = (0.0f64, 0.0f64);
-    for &c in &border {
-        let (l, w) = (lobe(c), g.cos_measure(c / np) as f64);
-        sab += w * l * values[c] as f64;
-        sbb += w * l * l;
-    }
-    if sbb > 0.0 && !(LEVEL_RANGE.0..=LEVEL_RANGE.1).contains(&(sab / sbb)) {
-        return None;
-    }
+        .min_by(|a, b| a.1.total_cmp(&b.1))?;
     let mut out = table.clone();
     let mut added = false;
     for c in (0..g.len()).filter(|&c| empty(c)) {
