@@ -10,17 +10,17 @@
 //! `ndf_true_mass_uncovered` and `ndf_scale_observed`).
 //!
 //! A lobe's tail is smooth, so the empty cells take a fitted lobe instead of
-//! nothing, of either of two forms ([`Form`]), each with any anisotropy,
-//! orientation and offset: Beckmann's, `ln(D cos^4 theta)` quadratic in the
-//! slopes `(h_x / h_z, h_y / h_z)`, or GGX's, `(D cos^4 theta)^-1/2`
-//! quadratic, whose tail is far heavier. Each is fitted by weighted linear
-//! least squares to the lobe's body: the covered cells holding at least
-//! [`MIN_RELATIVE`] of the peak and joined to it, each weighted by its mass
-//! (`D cos theta dw`). The form whose level on the covered cells beside the
-//! empty ones (their least-squares scale against it) is nearer 1 fills
-//! them; if neither is within a factor of two there, the table is not such
-//! a lobe where it meets its empty cells, and they stay empty rather than
-//! take a guess. No filled value exceeds the table's largest covered one.
+//! nothing: Beckmann's form with any anisotropy, orientation and offset,
+//! that is `ln(D cos^4 theta)` quadratic in the slopes `(h_x / h_z,
+//! h_y / h_z)`. It is fitted by weighted least squares to the lobe's body:
+//! the covered cells holding at least [`MIN_RELATIVE`] of the peak and
+//! joined to it, each weighted by its mass (`D cos theta dw`). The fit
+//! fills nothing when it does not fall off in every direction, or when the
+//! covered cells beside the empty ones are not within a factor of two of it
+//! (their least-squares level): there the table is not such a lobe, and an
+//! empty cell is better than a guess. No filled value exceeds the table's
+//! largest covered one. A lobe whose tail is heavier than Beckmann's (GGX)
+//! is underfilled, which is still closer than an empty cell.
 
 use brdf::ndf::NdfTable;
 use nalgebra::{Matrix6, Vector6};
@@ -41,67 +41,6 @@ const LEVEL_RANGE: (f64, f64) = (0.5, 2.0);
 /// The quadratic's features at slopes `(x, y)`.
 fn features(x: f64, y: f64) -> Vector6<f64> {
     Vector6::new(1.0, x, y, x * x, x * y, y * y)
-}
-
-/// The two forms a tail may take, each a quadratic `Q(s)` in the slopes
-/// `s` fitted by linear least squares: Beckmann's, `D cos^4 = exp(Q)`, and
-/// GGX's (Trowbridge and Reitz), `D cos^4 = Q^-2`, whose tail falls as a
-/// power of the slope rather than exponentially.
-#[derive(Clone, Copy, Debug)]
-enum Form {
-    Beckmann,
-    Ggx,
-}
-
-impl Form {
-    /// The quadratic fitted to the body's cells `(D cos^4, x, y, mass,
-    /// cos^4)`, residuals relative to the value and weighted by the mass;
-    /// `None` unless it describes a lobe (falls off in every direction, and
-    /// for GGX stays positive).
-    fn fit(self, cells: &[(f64, f64, f64, f64, f64)]) -> Option<Vector6<f64>> {
-        let (mut a, mut b) = (Matrix6::<f64>::zeros(), Vector6::<f64>::zeros());
-        for &(dc4, x, y, mass, _) in cells {
-            let f = features(x, y);
-            // A relative error e of D is e in ln D, and e / 2 of D^-1/2
-            // relative to it.
-            let (target, w) = match self {
-                Form::Beckmann => (dc4.ln(), mass),
-                Form::Ggx => {
-                    let u = dc4.powf(-0.5);
-                    (u, 4.0 * mass / (u * u))
-                }
-            };
-            a += w * f * f.transpose();
-            b += w * target * f;
-        }
-        let q = a.cholesky()?.solve(&b);
-        let sign = match self {
-            Form::Beckmann => -1.0,
-            Form::Ggx => 1.0,
-        };
-        let (qxx, qxy, qyy) = (sign * q[3], sign * q[4], sign * q[5]);
-        if !(qxx > 0.0 && 4.0 * qxx * qyy - qxy * qxy > 0.0) {
-            return None;
-        }
-        if let Form::Ggx = self {
-            // The quadratic's least value, at `2 M s = -(q1, q2)`.
-            let det = 4.0 * q[3] * q[5] - q[4] * q[4];
-            let (sx, sy) = ((-2.0 * q[5] * q[1] + q[4] * q[2]) / det, (-2.0 * q[3] * q[2] + q[4] * q[1]) / det);
-            if !(q.dot(&features(sx, sy)) > 0.0) {
-                return None;
-            }
-        }
-        Some(q)
-    }
-
-    /// `D cos^4 theta` at slopes `(x, y)`.
-    fn eval(self, q: &Vector6<f64>, x: f64, y: f64) -> f64 {
-        let v = q.dot(&features(x, y));
-        match self {
-            Form::Beckmann => v.exp(),
-            Form::Ggx => 1.0 / (v * v),
-        }
-    }
 }
 
 /// `table` with its empty cells (not covered, above the horizon) filled
@@ -148,35 +87,35 @@ pub fn fill(table: &NdfTable) -> Option<NdfTable> {
             }
         }
     }
-    let cells: Vec<(f64, f64, f64, f64, f64)> = (0..g.len())
-        .filter(|&c| body[c])
-        .filter_map(|c| {
-            slopes[c].map(|(c4, x, y)| (values[c] as f64 * c4, x, y, (values[c] * g.cos_measure(c / np)) as f64, c4))
-        })
-        .collect();
-    if cells.len() < MIN_CELLS {
+    let (mut a, mut b, mut n) = (Matrix6::<f64>::zeros(), Vector6::<f64>::zeros(), 0usize);
+    for c in (0..g.len()).filter(|&c| body[c]) {
+        let (v, Some((c4, x, y))) = (values[c], slopes[c]) else { continue };
+        let w = (v * g.cos_measure(c / np)) as f64;
+        let f = features(x, y);
+        a += w * f * f.transpose();
+        b += w * (v as f64 * c4).ln() * f;
+        n += 1;
+    }
+    if n < MIN_CELLS {
         return None;
     }
+    let q = a.cholesky()?.solve(&b);
+    // Falls off in every direction: the quadratic part is negative definite.
+    if !(q[3] < 0.0 && 4.0 * q[3] * q[5] - q[4] * q[4] > 0.0) {
+        return None;
+    }
+    let lobe = |c: usize| slopes[c].map_or(0.0, |(c4, x, y)| q.dot(&features(x, y)).exp() / c4);
+    // Where the table meets its empty cells, the lobe must agree with it.
     let empty = |c: usize| !cov.get(c) && slopes[c].is_some();
-    let border: Vec<usize> = cov.iter_set().filter(|&c| neighbours(c).any(empty)).collect();
-    // Each form fitted; the one that meets the table at its border more
-    // closely (its level there nearer 1) fills, if within LEVEL_RANGE.
-    let slopes = &slopes;
-    let (lobe, _) = [Form::Beckmann, Form::Ggx]
-        .into_iter()
-        .filter_map(|form| {
-            let q = form.fit(&cells)?;
-            let lobe = move |c: usize| slopes[c].map_or(0.0, |(c4, x, y)| form.eval(&q, x, y) / c4);
-            let (mut sab, mut sbb) = (0.0f64, 0.0f64);
-            for &c in &border {
-                let (l, w) = (lobe(c), g.cos_measure(c / np) as f64);
-                sab += w * l * values[c] as f64;
-                sbb += w * l * l;
-            }
-            let level = if sbb > 0.0 { sab / sbb } else { 1.0 };
-            (LEVEL_RANGE.0..=LEVEL_RANGE.1).contains(&level).then_some((lobe, level.ln().abs()))
-        })
-        .min_by(|a, b| a.1.total_cmp(&b.1))?;
+    let (mut sab, mut sbb) = (0.0f64, 0.0f64);
+    for c in cov.iter_set().filter(|&c| neighbours(c).any(empty)) {
+        let (l, w) = (lobe(c), g.cos_measure(c / np) as f64);
+        sab += w * l * values[c] as f64;
+        sbb += w * l * l;
+    }
+    if sbb > 0.0 && !(LEVEL_RANGE.0..=LEVEL_RANGE.1).contains(&(sab / sbb)) {
+        return None;
+    }
     let mut out = table.clone();
     let mut added = false;
     for c in (0..g.len()).filter(|&c| empty(c)) {
@@ -235,35 +174,6 @@ mod tests {
         for c in holed.coverage().iter_set() {
             assert_eq!(filled.values()[c], holed.values()[c], "covered cells are kept");
         }
-    }
-
-    #[test]
-    fn a_ggx_lobe_s_heavy_tail_is_restored_as_such() {
-        // Measured metals and paints have GGX-like tails, which a Beckmann
-        // fit to the body would cut off.
-        let grid = NdfGrid::new(32, 96).unwrap();
-        let ndf = brdf::ndf::Ggx::new(0.12, 0.2, 0.4);
-        let mut truth = NdfTable::from_ndf(grid, &ndf);
-        truth.normalize();
-        let np = grid.n_phi as usize;
-        let mut cov = Coverage::empty(grid.len());
-        let mut values = truth.values().to_vec();
-        for c in 0..grid.len() {
-            if grid.theta_center(c / np) < 30f32.to_radians() {
-                cov.set(c, true);
-            } else {
-                values[c] = 0.0;
-            }
-        }
-        let holed = NdfTable::from_values(grid, values, cov).unwrap();
-        let lost = mass(&truth, |c| !holed.coverage().get(c));
-        assert!(lost > 0.05, "GGX holds a visible share beyond 30 degrees, lost {lost}");
-        let filled = fill(&holed).expect("a GGX lobe is fitted");
-        let restored = mass(&filled, |c| !holed.coverage().get(c));
-        // The table holds cell averages, which a fit at the cells' centres
-        // reproduces to a per cent or so; a Beckmann tail would restore a
-        // fraction of the mass.
-        assert!((restored - lost).abs() < 0.05 * lost, "restored {restored} of {lost}");
     }
 
     #[test]
