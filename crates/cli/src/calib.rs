@@ -113,6 +113,17 @@ pub async fn white<K: Connector, C: Camera>(
                 100.0 * l.scale_sd
             ),
         );
+        let unmeasured = l.led_mm.len().saturating_sub(l.measured.len());
+        if unmeasured > 0 {
+            rep.stage(
+                "calibrate",
+                format!(
+                    "placed {} of the {unmeasured} LEDs the mirror did not see by how their light falls off across \
+                     the white (the rest stay on the line through the measured ones)",
+                    l.white_placed.len()
+                ),
+            );
+        }
         if off.abs() > 0.95 * fit::calibrate::SCALE_SEARCH_SDS as f32 * l.scale_sd {
             rep.warn(
                 "the white scan and the mirror scan disagree about the LEDs' distances by more than the build's \
@@ -393,6 +404,7 @@ async fn mirror_scan<K: Connector>(
         max_mm: sol.max_mm,
         scale_sd: sol.scale_sd,
         white_scale: 1.0,
+        white_placed: Vec::new(),
     })
 }
 

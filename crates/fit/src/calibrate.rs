@@ -135,13 +135,15 @@ impl<'a> WhiteAccumulator<'a> {
     }
 
     /// `(ln M, ln cos_emit)` of every sample (NaN `ln M` where unusable)
-    /// with the LEDs scaled by `alpha` about `centre`.
-    fn log_data(&self, centre: Vec3, alpha: f32) -> Vec<(f32, f32)> {
+    /// with the LEDs scaled by `alpha` about `centre`, then each moved by
+    /// its entry of `moved` (indexed by LED; none where it is short).
+    fn log_data(&self, centre: Vec3, alpha: f32, moved: &[Vec3]) -> Vec<(f32, f32)> {
         let ctx = self.ctx;
         let np = ctx.n_points();
         let mut out = vec![(f32::NAN, 0.0f32); self.signal.len()];
         out.par_chunks_mut(np).enumerate().for_each(|(q, row)| {
-            let pos = centre + alpha * (ctx.lights[q].pos - centre);
+            let l = &ctx.lights[q];
+            let pos = centre + alpha * (l.pos - centre) + moved.get(l.led as usize).copied().unwrap_or(Vec3::ZERO);
             for (p, slot) in row.iter_mut().enumerate() {
                 let s = self.signal[q * np + p];
                 if !s.is_finite() {
@@ -167,7 +169,7 @@ impl<'a> WhiteAccumulator<'a> {
     pub fn solve(&self, base: &Calibration, id: String) -> Option<Calibration> {
         let (nq, np) = (self.ctx.n_lights(), self.ctx.n_points());
         let centre = crate::mirror::camera_image(self.ctx.inputs.geometry.camera.position_mm);
-        let mut data = self.log_data(centre, 1.0);
+        let mut data = self.log_data(centre, 1.0, &[]);
         if data.iter().filter(|d| d.0.is_finite()).count() < (nq + np) * 2 {
             return None;
         }
@@ -199,7 +201,7 @@ impl<'a> WhiteAccumulator<'a> {
             let counted: Vec<bool> = self.ctx.lights.iter().map(|l| lights.measured.contains(&l.led)).collect();
             let (ls0, lf0, dm0) = (ls.clone(), lf.clone(), dm);
             let cost = |a: f64| {
-                let d = drop(self.log_data(centre, a as f32));
+                let d = drop(self.log_data(centre, a as f32, &[]));
                 let (mut ls, mut lf, mut dm) = (ls0.clone(), lf0.clone(), dm0);
                 als(&d, nq, np, &mut ls, &mut lf, &mut dm);
                 (0..nq)
@@ -212,9 +214,30 @@ impl<'a> WhiteAccumulator<'a> {
             let reach = SCALE_SEARCH_SDS * lights.scale_sd as f64;
             // 25 steps shrink the bracket to 1e-5 of itself, well under 0.001%.
             alpha = crate::lsq::golden_section(cost, 1.0 - reach, 1.0 + reach, 25);
-            data = drop(self.log_data(centre, alpha as f32));
+            data = drop(self.log_data(centre, alpha as f32, &[]));
         }
         als(&data, nq, np, &mut ls, &mut lf, &mut dm);
+        // The LEDs the mirror did not see, each where its own light's
+        // fall-off says with the flat field and profile held; then the flat
+        // field and profile again with those LEDs in their places.
+        let mut moved = vec![Vec3::ZERO; base.led_scale.len()];
+        let mut placed = Vec::new();
+        if let Some(lights) = base.lights.as_ref().filter(|l| !l.measured.is_empty()) {
+            let unmeasured: Vec<u8> = (0..moved.len() as u8).filter(|k| !lights.measured.contains(k)).collect();
+            for _ in 0..PLACEMENT_ROUNDS {
+                let found: Vec<(u8, Option<Vec3>)> = unmeasured
+                    .par_iter()
+                    .map(|&k| (k, self.place_led(k, centre, alpha as f32, &kept, &lf, dm, limit / OUTLIER_SIGMAS)))
+                    .collect();
+                placed.clear();
+                for (k, d) in found {
+                    moved[k as usize] = d.unwrap_or(Vec3::ZERO);
+                    placed.extend(d.map(|_| k));
+                }
+                data = drop(self.log_data(centre, alpha as f32, &moved));
+                als(&data, nq, np, &mut ls, &mut lf, &mut dm);
+            }
+        }
         let (mut ss, mut n) = (0.0f64, 0usize);
         for r in residuals(&data, nq, np, &ls, &lf, dm) {
             ss += r * r;
@@ -250,7 +273,10 @@ impl<'a> WhiteAccumulator<'a> {
             let (reading, rel_var) = self.patches.reference(
                 self.ctx,
                 n_leds,
-                |q| centre + a * (self.ctx.lights[q].pos - centre),
+                |q| {
+                    let l = &self.ctx.lights[q];
+                    centre + a * (l.pos - centre) + moved.get(l.led as usize).copied().unwrap_or(Vec3::ZERO)
+                },
                 profile_exponent,
             );
             let plan = &self.ctx.inputs.plan;
@@ -262,7 +288,13 @@ impl<'a> WhiteAccumulator<'a> {
             }
         });
         let lights = base.lights.clone().map(|l| setup::calibration::LightCalibration {
-            led_mm: l.led_mm.iter().map(|&p| centre + a * (p - centre)).collect(),
+            led_mm: l
+                .led_mm
+                .iter()
+                .enumerate()
+                .map(|(k, &p)| centre + a * (p - centre) + moved.get(k).copied().unwrap_or(Vec3::ZERO))
+                .collect(),
+            white_placed: placed,
             travel_mm: a * l.travel_mm,
             white_scale: l.white_scale * a,
             ..l
@@ -280,7 +312,93 @@ impl<'a> WhiteAccumulator<'a> {
             ..base.clone()
         })
     }
+
+    /// Where LED `k` lies, as a displacement from its place with the LEDs
+    /// scaled by `alpha` about `centre`: the one that best explains how its
+    /// light falls off across the white at every carriage position, with
+    /// the flat field `lf` and profile term `dm` of the whole scan held and
+    /// each light's own level free (Levenberg-Marquardt on the kept
+    /// samples' log residuals, each light's mean taken out). `None` where
+    /// the LED has too few samples, or the fit does not lower their
+    /// residual or lands beyond [`PLACEMENT_REACH_MM`].
+    #[allow(clippy::too_many_arguments)]
+    fn place_led(
+        &self,
+        k: u8,
+        centre: Vec3,
+        alpha: f32,
+        kept: &[bool],
+        lf: &[f64],
+        dm: f64,
+        sigma: f64,
+    ) -> Option<Vec3> {
+        use levenberg_marquardt::LevenbergMarquardt;
+        use nalgebra::DVector;
+        let ctx = self.ctx;
+        let np = ctx.n_points();
+        // The LED's (light, points) with a usable sample where it is now.
+        let rows: Vec<(usize, Vec<usize>)> = (0..ctx.n_lights())
+            .filter(|&q| ctx.lights[q].led == k)
+            .map(|q| {
+                let pos = centre + alpha * (ctx.lights[q].pos - centre);
+                let ps = (0..np)
+                    .filter(|&p| {
+                        kept[q * np + p] && self.signal[q * np + p].is_finite() && ctx.sample_from(p, q, pos).is_some()
+                    })
+                    .collect::<Vec<_>>();
+                (q, ps)
+            })
+            .filter(|(_, ps)| ps.len() >= MIN_PLACEMENT_POINTS)
+            .collect();
+        let n: usize = rows.iter().map(|(_, ps)| ps.len()).sum();
+        if rows.len() < 2 || n < 4 * MIN_PLACEMENT_POINTS {
+            return None;
+        }
+        let residuals = |u: &DVector<f64>| {
+            let d = Vec3::new(u[0] as f32, u[1] as f32, u[2] as f32);
+            let mut out = Vec::with_capacity(n);
+            for (q, ps) in &rows {
+                let pos = centre + alpha * (ctx.lights[*q].pos - centre) + d;
+                let first = out.len();
+                for &p in ps {
+                    let x = ctx.sample_from(p, *q, pos).map_or(f64::NAN, |g| {
+                        self.signal[*q * np + p] as f64 + (g.to_rho as f64).ln() - lf[p] - dm * (g.cos_emit as f64).ln()
+                    });
+                    out.push(x);
+                }
+                let row = &mut out[first..];
+                let mean = finite_mean(row.iter().copied().filter(|x| x.is_finite())).unwrap_or(0.0);
+                row.iter_mut().for_each(|x| *x = if x.is_finite() { *x - mean } else { 0.0 });
+            }
+            // The bar's build: each LED within its placement tolerance of
+            // its place (half of it one standard deviation, as the mirror
+            // scan takes it), in units of one sample's noise.
+            out.extend((0..3).map(|i| sigma * u[i] / (0.5 * crate::mirror::LED_PLACEMENT_MM)));
+            DVector::from_vec(out)
+        };
+        let start = residuals(&DVector::zeros(3)).norm_squared();
+        let problem = crate::lsq::Numeric::new(residuals, DVector::zeros(3), crate::lsq::Step::Central(0.01));
+        let (solved, _) = LevenbergMarquardt::new().with_patience(50).minimize(problem);
+        let u = &solved.u;
+        let d = Vec3::new(u[0] as f32, u[1] as f32, u[2] as f32);
+        let end = solved.residuals_at(u).norm_squared();
+        (d.is_finite() && d.length() <= PLACEMENT_REACH_MM && end < start).then_some(d)
+    }
 }
+
+/// Rounds of placing the LEDs the mirror did not measure and solving the
+/// flat field again with them in place (the second round's places move by
+/// hundredths of a millimetre on the simulated rigs).
+const PLACEMENT_ROUNDS: usize = 2;
+
+/// A light of an unmeasured LED counts toward its placement with at least
+/// this many usable points of the white.
+const MIN_PLACEMENT_POINTS: usize = 8;
+
+/// The farthest the white scan moves an LED from its place on the line
+/// through the measured ones: several times an LED's placement tolerance
+/// on a bar (a fit that goes farther has found something else).
+pub const PLACEMENT_REACH_MM: f32 = 3.0;
 
 /// What a stack of dark frames says about the sensor, per Bayer colour
 /// (mono sensors fill all three slots with the one value).

@@ -135,6 +135,11 @@ pub struct LightCalibration {
     /// camera's mirror image (1 before a white scan).
     #[serde(default = "one")]
     pub white_scale: f32,
+    /// LEDs the mirror did not measure that the white scan placed, from how
+    /// each one's light falls off across the white (the others of those
+    /// stay on the line through the measured ones).
+    #[serde(default)]
+    pub white_placed: Vec<u8>,
 }
 
 fn one() -> f32 {

@@ -283,6 +283,7 @@ mod tests {
             max_mm: 0.02,
             scale_sd: 0.0015,
             white_scale: 1.0,
+            white_placed: Vec::new(),
         };
         let with = |l: crate::calibration::LightCalibration| Calibration {
             lights: Some(l),
