@@ -771,6 +771,11 @@ fn capture_calibrates_the_geometry_and_uses_it() {
     // sample's frame.
     let mirror = cal.lights.expect("the mirror scan's LEDs");
     assert!(mirror.measured.len() >= 18 && mirror.rms_mm < 0.1, "{mirror:?}");
+    // The gantry's backlash, from the return pass over three positions,
+    // within the stated 0.01 mm (tests/geometric.rs).
+    let play = mirror.backlash_mm.expect("the mirror scan measures the backlash");
+    eprintln!("backlash {play:.4} mm (true {:.4})", truth.backlash_mm);
+    assert!((play - truth.backlash_mm).abs() < 0.01, "backlash {play} mm, true {}", truth.backlash_mm);
     let used: setup::Calibration = serde_json::from_value(info["calibration"].clone()).unwrap();
     let lights = used.lights.expect("the capture's calibration has the LEDs");
     assert_ne!(lights.white_scale, 1.0, "the white scan did not rescale the LEDs");

@@ -121,6 +121,18 @@ fn sim_camera(truth: sim::RigTruth, seed: u64, material: std::sync::Arc<dyn mate
 /// The mirror scan of `capture --calibrate geometry`, rendered directly:
 /// every LED at every scan position, less the mean of the dark frames.
 fn mirror_highlights(truth: sim::RigTruth, seed: u64, filed: &RigGeometry) -> Vec<fit::mirror::Highlight> {
+    let visits: Vec<(f32, bool)> = fit::mirror::scan_positions(filed).into_iter().map(|x| (x, true)).collect();
+    mirror_spots(truth, seed, filed, &visits)
+}
+
+/// The highlights of every LED at each `(commanded position, approached
+/// from below)` of `visits`, as [`mirror_highlights`] finds them.
+fn mirror_spots(
+    truth: sim::RigTruth,
+    seed: u64,
+    filed: &RigGeometry,
+    visits: &[(f32, bool)],
+) -> Vec<fit::mirror::Highlight> {
     let mut cam = sim_camera(truth, seed, std::sync::Arc::new(sim::materials::Mirror));
     cam.set_exposure_direct(20_000 / fit::mirror::EXPOSURE_DIVISOR, 1.0);
     let dark_n = fit::mirror::DARK_FRAMES;
@@ -130,10 +142,10 @@ fn mirror_highlights(truth: sim::RigTruth, seed: u64, filed: &RigGeometry) -> Ve
     }
     let ceiling = 4095.0 - 64.0 - 50.0;
     let mut out = Vec::new();
-    for x in fit::mirror::scan_positions(filed) {
+    for &(x, forward) in visits {
         for led in 0..40 {
             let mut img = dark.clone();
-            assert!(img.add(&cam.render_direct((x * 1000.0).round() as i32, Some(led)), 1.0));
+            assert!(img.add(&cam.render_direct_approached((x * 1000.0).round() as i32, Some(led), forward), 1.0));
             if let Some(pixel) = fit::mirror::find_highlight(&img, ceiling) {
                 out.push(fit::mirror::Highlight { led, commanded_mm: x, pixel });
             }
@@ -267,6 +279,34 @@ fn the_leds_of_a_perturbed_rig_are_recovered_from_a_mirror() {
     }
 }
 
+#[test]
+fn the_gantry_backlash_is_measured_from_the_mirror() {
+    let filed = RigGeometry::default();
+    let rigs = [1u64, 3, 11].map(|seed| (seed, sim::RigTruth::perturbed(&filed, seed)));
+    for (seed, truth) in rigs.into_iter().chain([(0, sim::RigTruth::ideal(&filed))]) {
+        let up = mirror_highlights(truth.clone(), seed, &filed);
+        // The return pass as `capture --calibrate geometry` makes it, its
+        // frames with noise of their own (another seed).
+        let back: Vec<(f32, bool)> = fit::mirror::return_positions(&fit::mirror::scan_positions(&filed))
+            .into_iter()
+            .map(|x| (x, false))
+            .collect();
+        let down = mirror_spots(truth.clone(), seed ^ 0x5eed, &filed, &back);
+        let b = fit::mirror::backlash(&up, &down).expect("highlights seen from both directions");
+        eprintln!(
+            "seed {seed}: backlash {:.4} mm +- {:.4} from {} pairs (true {:.4} mm)",
+            b.mm, b.sd_mm, b.pairs, truth.backlash_mm
+        );
+        assert!(b.pairs >= 30, "seed {seed}: {b:?}");
+        // The stated tolerance (CALIBRATION.md): a tenth of the largest
+        // backlash a rig is drawn with. A spot's centre is good to a few
+        // hundredths of a pixel and moves about 2 px per millimetre of
+        // carriage, so one pair is good to about 0.02 mm and the median
+        // of 30 or more to a few thousandths.
+        assert!((b.mm - truth.backlash_mm).abs() < 0.01, "seed {seed}: {b:?}, true {}", truth.backlash_mm);
+    }
+}
+
 /// LED `k` of `truth` with the carriage commanded to 0, in its sample frame.
 fn back_of(truth: &sim::RigTruth, k: u8) -> glam::Vec3 {
     let (to_rig, origin) = truth.sample_frame();
@@ -293,6 +333,7 @@ fn the_white_scan_finds_the_scale_a_mirror_cannot_see() {
             scale_sd: sol.scale_sd,
             white_scale: 1.0,
             white_placed: Vec::new(),
+            backlash_mm: None,
         });
         // The white scan as `capture --calibrate white` runs it, seen by the
         // calibrated camera.

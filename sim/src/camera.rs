@@ -385,8 +385,14 @@ impl SimCamera {
     /// the same shot, so direct and rig-driven captures agree.
     /// The carriage is taken to have arrived moving toward `+x`.
     pub fn render_direct(&mut self, position_um: i32, led: Option<u8>) -> Frame {
+        self.render_direct_approached(position_um, led, true)
+    }
+
+    /// [`Self::render_direct`] with the carriage's last move toward `+x`
+    /// (`forward`) or `-x`, which its backlash follows.
+    pub fn render_direct_approached(&mut self, position_um: i32, led: Option<u8>, forward: bool) -> Frame {
         let truth = &self.cfg.truth;
-        let bar_x_mm = truth.bar_x_mm(position_um as f32 / 1000.0, true);
+        let bar_x_mm = truth.bar_x_mm(position_um as f32 / 1000.0, forward);
         let lights: Vec<_> = led
             .map(|l| {
                 (truth.led_position(bar_x_mm, l), bar_x_mm, self.led_intensity(l, self.cfg.leds.nominal_current_ma))

@@ -326,7 +326,10 @@ async fn mirror_scan<K: Connector>(
     rep: &mut Reporter,
 ) -> Result<setup::calibration::LightCalibration> {
     use fit::geometric::Luma;
-    use fit::mirror::{DARK_FRAMES, EXPOSURE_DIVISOR, Highlight, find_highlight, scan_positions, solve_lights};
+    use fit::mirror::{
+        DARK_FRAMES, EXPOSURE_DIVISOR, Highlight, backlash, find_highlight, return_positions, scan_positions,
+        solve_lights,
+    };
     place(camera, Holder::Mirror, rep).await?;
     let settings = CameraSettings { exposure_us: (default.exposure_us / EXPOSURE_DIVISOR).max(1), ..default.clone() };
     crate::session::configure_camera(camera, &settings, rep).await?;
@@ -346,21 +349,32 @@ async fn mirror_scan<K: Connector>(
     let black = -dark.data.iter().sum::<f32>() / dark.data.len().max(1) as f32;
     let ceiling = 0.98 * (top - black);
     let leds: Vec<u8> = (0..filed.bar.n_leds).collect();
-    let total = (positions.len() * leds.len()) as u64;
+    let back = return_positions(&positions);
+    let total = ((positions.len() + back.len()) * leds.len()) as u64;
     let started = std::time::Instant::now();
     let mut done = 0u64;
-    let mut found = Vec::new();
+    let (mut found, mut down) = (Vec::new(), Vec::new());
     // Every position approached from below, as a capture's are, so the
-    // gantry's backlash is taken up the same way.
+    // gantry's backlash is taken up the same way. Then a few again from
+    // above (`back`): the lead screw's backlash, which the scans and
+    // captures design out by approaching from below, but which a worn nut
+    // shows.
     rig.move_to(((positions[0] - 5.0).max(filed.gantry.travel_min_mm) * 1000.0).round() as i32).await?;
-    for &x in &positions {
+    let visits = positions.iter().map(|&x| (x, true)).chain(back.iter().map(|&x| (x, false)));
+    let mut going_up = true;
+    for (x, up) in visits {
         rig.all_off().await?;
+        if going_up && !up {
+            let top = positions.iter().copied().fold(x, f32::max);
+            rig.move_to(((top + 5.0).min(filed.gantry.travel_max_mm) * 1000.0).round() as i32).await?;
+            going_up = false;
+        }
         rig.move_to((x * 1000.0).round() as i32).await?;
         for &led in &leds {
             let mut img = dark.clone();
             add_frame(&mut img, &lit_frame(rig, camera, led).await?, 1.0)?;
             if let Some(pixel) = tokio::task::block_in_place(|| find_highlight(&img, ceiling)) {
-                found.push(Highlight { led, commanded_mm: x, pixel });
+                (if up { &mut found } else { &mut down }).push(Highlight { led, commanded_mm: x, pixel });
             }
             done += 1;
             frames_done(rep, done, total, started);
@@ -368,13 +382,31 @@ async fn mirror_scan<K: Connector>(
     }
     rig.all_off().await?;
     let sol = tokio::task::block_in_place(|| solve_lights(&found, measured, filed))?;
+    let play = backlash(&found, &down);
+    if let Some(b) = play {
+        rep.stage(
+            "calibrate",
+            format!(
+                "the gantry's backlash {:.3} mm (+-{:.4}, {} highlights seen from both directions); every scan and \
+                 capture approaches its positions from below, so it does not enter a fit",
+                b.mm, b.sd_mm, b.pairs
+            ),
+        );
+        if b.mm.abs() > BACKLASH_WARN_MM {
+            rep.warn(format!(
+                "the gantry's backlash is {:.2} mm, more than a lead screw's {BACKLASH_WARN_MM} mm: check the \
+                 carriage's nut and coupling (a loose carriage also wanders between frames)",
+                b.mm
+            ));
+        }
+    }
     let nominal_mid = filed.bar.led_position(0.0, filed.bar.n_leds / 2);
     let mid = sol.led_mm[(filed.bar.n_leds / 2) as usize];
     rep.stage(
         "calibrate",
         format!(
-            "LEDs: {} measured from {} highlights (the others placed along the bar through them), {:.3} mm RMS from \
-             their rays ({:.3} mm worst); the middle LED {:.2} mm from the rig file's place, at height {:.2} mm \
+            "LEDs: {} measured from {} highlights (the others on the line through them until the white scan places \
+             them), {:.3} mm RMS from their rays ({:.3} mm worst); the middle LED {:.2} mm from the rig file's place, at height {:.2} mm \
              (filed {:.2}); the gantry's scale {:+.2}% (+-{:.2}% from the build's tolerances: a mirror cannot see it)",
             sol.measured.len(),
             sol.used,
@@ -405,8 +437,14 @@ async fn mirror_scan<K: Connector>(
         scale_sd: sol.scale_sd,
         white_scale: 1.0,
         white_placed: Vec::new(),
+        backlash_mm: play.map(|b| b.mm),
     })
 }
+
+/// A backlash beyond this is reported as a mechanical fault: twice the
+/// largest a bench rig's lead screw is taken to have (RIGFILE.md's
+/// tolerances, 0.1 mm).
+const BACKLASH_WARN_MM: f32 = 0.2;
 
 /// What the geometric scan has the operator put in the sample holder.
 enum Holder<'a> {

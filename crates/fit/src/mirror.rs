@@ -84,6 +84,73 @@ pub struct Highlight {
     pub pixel: Vec2,
 }
 
+/// Carriage positions (of [`scan_positions`]) the mirror scan visits a
+/// second time, approached from above: the first, the middle and the last,
+/// visited downward.
+pub fn return_positions(positions: &[f32]) -> Vec<f32> {
+    let mut out: Vec<f32> = match positions {
+        [] => Vec::new(),
+        [a] => vec![*a],
+        _ => vec![positions[0], positions[positions.len() / 2], positions[positions.len() - 1]],
+    };
+    out.dedup();
+    out.reverse();
+    out
+}
+
+/// The gantry's backlash as the mirror saw it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Backlash {
+    /// How much farther along `+x` the carriage stands at a position
+    /// approached from above than at the same position approached from
+    /// below, commanded millimetres.
+    pub mm: f32,
+    /// Its standard error (from the spread of the pairs).
+    pub sd_mm: f32,
+    /// Highlights seen from both directions.
+    pub pairs: usize,
+}
+
+/// The backlash from highlights of the same LED at the same commanded
+/// position approached from below (`up`, the scan's own) and from above
+/// (`down`): each pair's shift of the spot, projected on how the spot moves
+/// per commanded millimetre (that LED's spots at the neighbouring positions
+/// of `up`), is the carriage's shift; the median of them. `None` without
+/// pairs.
+pub fn backlash(up: &[Highlight], down: &[Highlight]) -> Option<Backlash> {
+    let mut shifts: Vec<f64> = down
+        .iter()
+        .filter_map(|d| {
+            let same = |h: &&Highlight| h.led == d.led;
+            let at = up.iter().filter(same).find(|h| h.commanded_mm == d.commanded_mm)?;
+            let below = up.iter().filter(same).filter(|h| h.commanded_mm < d.commanded_mm);
+            let above = up.iter().filter(same).filter(|h| h.commanded_mm > d.commanded_mm);
+            let lo = below.max_by(|a, b| a.commanded_mm.total_cmp(&b.commanded_mm)).unwrap_or(at);
+            let hi = above.min_by(|a, b| a.commanded_mm.total_cmp(&b.commanded_mm)).unwrap_or(at);
+            let run = hi.commanded_mm - lo.commanded_mm;
+            if run <= 0.0 {
+                return None;
+            }
+            let per_mm = (hi.pixel - lo.pixel) / run;
+            let moved = d.pixel - at.pixel;
+            (per_mm.length_squared() > 0.0).then(|| (moved.dot(per_mm) / per_mm.length_squared()) as f64)
+        })
+        .collect();
+    let n = shifts.len();
+    if n == 0 {
+        return None;
+    }
+    let median = |v: &mut Vec<f64>| {
+        let mid = v.len() / 2;
+        *v.select_nth_unstable_by(mid, f64::total_cmp).1
+    };
+    let m = median(&mut shifts);
+    let mut dev: Vec<f64> = shifts.iter().map(|s| (s - m).abs()).collect();
+    // The median's standard error: 1.25 times the mean's for normal spread.
+    let sd = 1.25 * 1.4826 * median(&mut dev) / (n as f64).sqrt();
+    Some(Backlash { mm: m as f32, sd_mm: sd as f32, pairs: n })
+}
+
 /// The camera at `camera_mm` mirrored in the plane `z = 0`: every ray a
 /// flat mirror there reflects into the camera passes through it.
 pub fn camera_image(camera_mm: Vec3) -> Vec3 {
@@ -378,6 +445,29 @@ mod tests {
     use rand::{Rng, SeedableRng};
 
     use super::*;
+
+    #[test]
+    fn the_backlash_is_the_shift_between_the_two_approaches() {
+        // Spots moving 1.9 px per commanded mm along a slant; the carriage
+        // 0.06 mm farther along when approached from above; a spot the
+        // return pass did not find is no pair.
+        let per_mm = Vec2::new(1.9, 0.4);
+        let spot = |led: u8, x: f32, shift: f32| Highlight {
+            led,
+            commanded_mm: x,
+            pixel: Vec2::new(20.0 * led as f32, 100.0) + (x + shift) * per_mm,
+        };
+        let positions = [-16.0, -8.0, 0.0, 8.0, 16.0];
+        let up: Vec<Highlight> = (0..4).flat_map(|led| positions.map(|x| spot(led, x, 0.0))).collect();
+        let back = return_positions(&positions);
+        assert_eq!(back, vec![16.0, 0.0, -16.0]);
+        let down: Vec<Highlight> =
+            (0..3).flat_map(|led| back.iter().map(move |&x| spot(led, x, 0.06))).chain([spot(9, 0.0, 0.06)]).collect();
+        let b = backlash(&up, &down).unwrap();
+        assert_eq!(b.pairs, 9);
+        assert!((b.mm - 0.06).abs() < 1e-4, "{b:?}");
+        assert!(backlash(&up, &[]).is_none());
+    }
 
     #[test]
     fn exact_highlights_give_the_leds_and_travel_back() {

@@ -140,6 +140,13 @@ pub struct LightCalibration {
     /// stay on the line through the measured ones).
     #[serde(default)]
     pub white_placed: Vec<u8>,
+    /// The gantry's backlash, mm: how much farther along its travel the
+    /// carriage stands at a position approached from above than from
+    /// below (the mirror scan revisits three positions from above). Every
+    /// scan and capture approaches from below, so it does not enter a fit;
+    /// it is kept to watch the lead screw. `None` before it was measured.
+    #[serde(default)]
+    pub backlash_mm: Option<f32>,
 }
 
 fn one() -> f32 {

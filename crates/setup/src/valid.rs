@@ -284,6 +284,7 @@ mod tests {
             scale_sd: 0.0015,
             white_scale: 1.0,
             white_placed: Vec::new(),
+            backlash_mm: None,
         };
         let with = |l: crate::calibration::LightCalibration| Calibration {
             lights: Some(l),
