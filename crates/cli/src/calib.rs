@@ -360,14 +360,13 @@ async fn mirror_scan<K: Connector>(
     // captures design out by approaching from below, but which a worn nut
     // shows.
     rig.move_to(((positions[0] - 5.0).max(filed.gantry.travel_min_mm) * 1000.0).round() as i32).await?;
+    let last = positions[positions.len() - 1];
     let visits = positions.iter().map(|&x| (x, true)).chain(back.iter().map(|&x| (x, false)));
-    let mut going_up = true;
     for (x, up) in visits {
         rig.all_off().await?;
-        if going_up && !up {
-            let top = positions.iter().copied().fold(x, f32::max);
-            rig.move_to(((top + 5.0).min(filed.gantry.travel_max_mm) * 1000.0).round() as i32).await?;
-            going_up = false;
+        if !up && x == back[0] {
+            // Past the top, to come down onto the first return position.
+            rig.move_to(((last + 5.0).min(filed.gantry.travel_max_mm) * 1000.0).round() as i32).await?;
         }
         rig.move_to((x * 1000.0).round() as i32).await?;
         for &led in &leds {

@@ -142,8 +142,7 @@ impl<'a> WhiteAccumulator<'a> {
         let np = ctx.n_points();
         let mut out = vec![(f32::NAN, 0.0f32); self.signal.len()];
         out.par_chunks_mut(np).enumerate().for_each(|(q, row)| {
-            let l = &ctx.lights[q];
-            let pos = centre + alpha * (l.pos - centre) + moved.get(l.led as usize).copied().unwrap_or(Vec3::ZERO);
+            let pos = white_position(ctx.lights[q].pos, ctx.lights[q].led, centre, alpha, moved);
             for (p, slot) in row.iter_mut().enumerate() {
                 let s = self.signal[q * np + p];
                 if !s.is_finite() {
@@ -273,10 +272,7 @@ impl<'a> WhiteAccumulator<'a> {
             let (reading, rel_var) = self.patches.reference(
                 self.ctx,
                 n_leds,
-                |q| {
-                    let l = &self.ctx.lights[q];
-                    centre + a * (l.pos - centre) + moved.get(l.led as usize).copied().unwrap_or(Vec3::ZERO)
-                },
+                |q| white_position(self.ctx.lights[q].pos, self.ctx.lights[q].led, centre, a, &moved),
                 profile_exponent,
             );
             let plan = &self.ctx.inputs.plan;
@@ -288,12 +284,7 @@ impl<'a> WhiteAccumulator<'a> {
             }
         });
         let lights = base.lights.clone().map(|l| setup::calibration::LightCalibration {
-            led_mm: l
-                .led_mm
-                .iter()
-                .enumerate()
-                .map(|(k, &p)| centre + a * (p - centre) + moved.get(k).copied().unwrap_or(Vec3::ZERO))
-                .collect(),
+            led_mm: l.led_mm.iter().zip(0u8..).map(|(&p, k)| white_position(p, k, centre, a, &moved)).collect(),
             white_placed: placed,
             travel_mm: a * l.travel_mm,
             white_scale: l.white_scale * a,
@@ -340,7 +331,7 @@ impl<'a> WhiteAccumulator<'a> {
         let rows: Vec<(usize, Vec<usize>)> = (0..ctx.n_lights())
             .filter(|&q| ctx.lights[q].led == k)
             .map(|q| {
-                let pos = centre + alpha * (ctx.lights[q].pos - centre);
+                let pos = white_position(ctx.lights[q].pos, k, centre, alpha, &[]);
                 let ps = (0..np)
                     .filter(|&p| {
                         kept[q * np + p] && self.signal[q * np + p].is_finite() && ctx.sample_from(p, q, pos).is_some()
@@ -358,7 +349,7 @@ impl<'a> WhiteAccumulator<'a> {
             let d = Vec3::new(u[0] as f32, u[1] as f32, u[2] as f32);
             let mut out = Vec::with_capacity(n);
             for (q, ps) in &rows {
-                let pos = centre + alpha * (ctx.lights[*q].pos - centre) + d;
+                let pos = white_position(ctx.lights[*q].pos, k, centre, alpha, &[]) + d;
                 let first = out.len();
                 for &p in ps {
                     let x = ctx.sample_from(p, *q, pos).map_or(f64::NAN, |g| {
@@ -384,6 +375,14 @@ impl<'a> WhiteAccumulator<'a> {
         let end = solved.residuals_at(u).norm_squared();
         (d.is_finite() && d.length() <= PLACEMENT_REACH_MM && end < start).then_some(d)
     }
+}
+
+/// Where the white scan puts a light or LED at `pos` (as its context or
+/// the mirror has it): scaled by `alpha` about `centre` (the scale the
+/// mirror left open), then moved by its LED's entry of `moved` (the
+/// placement of an LED the mirror did not see; none where it is short).
+fn white_position(pos: Vec3, led: u8, centre: Vec3, alpha: f32, moved: &[Vec3]) -> Vec3 {
+    centre + alpha * (pos - centre) + moved.get(led as usize).copied().unwrap_or(Vec3::ZERO)
 }
 
 /// Rounds of placing the LEDs the mirror did not measure and solving the

@@ -118,7 +118,7 @@ pub struct Backlash {
 /// of `up`), is the carriage's shift; the median of them. `None` without
 /// pairs.
 pub fn backlash(up: &[Highlight], down: &[Highlight]) -> Option<Backlash> {
-    let mut shifts: Vec<f64> = down
+    let mut shifts: Vec<f32> = down
         .iter()
         .filter_map(|d| {
             let same = |h: &&Highlight| h.led == d.led;
@@ -133,22 +133,16 @@ pub fn backlash(up: &[Highlight], down: &[Highlight]) -> Option<Backlash> {
             }
             let per_mm = (hi.pixel - lo.pixel) / run;
             let moved = d.pixel - at.pixel;
-            (per_mm.length_squared() > 0.0).then(|| (moved.dot(per_mm) / per_mm.length_squared()) as f64)
+            (per_mm.length_squared() > 0.0).then(|| moved.dot(per_mm) / per_mm.length_squared())
         })
         .collect();
     let n = shifts.len();
     if n == 0 {
         return None;
     }
-    let median = |v: &mut Vec<f64>| {
-        let mid = v.len() / 2;
-        *v.select_nth_unstable_by(mid, f64::total_cmp).1
-    };
-    let m = median(&mut shifts);
-    let mut dev: Vec<f64> = shifts.iter().map(|s| (s - m).abs()).collect();
+    let (mm, mad) = median_and_mad(&mut shifts);
     // The median's standard error: 1.25 times the mean's for normal spread.
-    let sd = 1.25 * 1.4826 * median(&mut dev) / (n as f64).sqrt();
-    Some(Backlash { mm: m as f32, sd_mm: sd as f32, pairs: n })
+    Some(Backlash { mm, sd_mm: 1.25 * 1.4826 * mad / (n as f32).sqrt(), pairs: n })
 }
 
 /// The camera at `camera_mm` mirrored in the plane `z = 0`: every ray a
@@ -268,11 +262,16 @@ fn noise_sd(img: &Luma) -> f32 {
     if v.is_empty() {
         return f32::INFINITY;
     }
+    (1.4826 * median_and_mad(&mut v).1).max(1e-3)
+}
+
+/// The median of `v` (not empty; reordered) and the median absolute
+/// deviation from it.
+fn median_and_mad(v: &mut [f32]) -> (f32, f32) {
     let mid = v.len() / 2;
     let median = *v.select_nth_unstable_by(mid, f32::total_cmp).1;
     let mut dev: Vec<f32> = v.iter().map(|x| (x - median).abs()).collect();
-    let mad = *dev.select_nth_unstable_by(mid, f32::total_cmp).1;
-    (1.4826 * mad).max(1e-3)
+    (median, *dev.select_nth_unstable_by(mid, f32::total_cmp).1)
 }
 
 /// The LEDs as the mirror scan measured them.
