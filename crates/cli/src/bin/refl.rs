@@ -233,6 +233,11 @@ enum BenchCmd {
     Budget {
         #[arg(long, default_value = "satin")]
         sample: String,
+        /// A stored material to budget instead of a built-in one (`refl
+        /// import-rgl` or `refl import-merl` output, as `capture
+        /// --sim-material` scans it); SAMPLE then only names it.
+        #[arg(long, value_name = "DIR")]
+        sim_material: Option<std::path::PathBuf>,
         #[arg(long, default_value = "fast")]
         quality: String,
         /// Also write the rows as JSON to this file.
@@ -561,10 +566,11 @@ fn main() -> ExitCode {
                     tokio::task::block_in_place(|| assess::bench::camera(&sample, px, frames)).map(|_| ())
                 }
                 BenchCmd::Protocol { n } => assess::bench::protocol(n).await,
-                BenchCmd::Budget { sample, quality, json } => {
+                BenchCmd::Budget { sample, sim_material, quality, json } => {
                     let q = config::preset(&quality)
                         .ok_or_else(|| cli::usage(anyhow::anyhow!("unknown quality '{quality}'")))?;
-                    let rows = tokio::task::block_in_place(|| assess::budget::run(&sample, &q))?;
+                    let rows =
+                        tokio::task::block_in_place(|| assess::budget::run(&sample, sim_material.as_deref(), &q))?;
                     if let Some(p) = json {
                         std::fs::write(&p, serde_json::to_vec_pretty(&rows)?)
                             .with_context(|| format!("cannot write {}", p.display()))?;
