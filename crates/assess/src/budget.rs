@@ -223,32 +223,9 @@ const REACH_STRIDE: usize = 37;
 /// lobe.
 const REACH_GRID: NdfGrid = NdfGrid { n_theta: 64, n_phi: 128 };
 
-/// The half-angle of the cone whose solid angle equals that of the
-/// smallest set of directions holding half of `ndf`'s projected mass
-/// (`D(h) cos(theta_h)`, the densest cells of [`REACH_GRID`] first), and
-/// the densest cell's direction; `None` for an NDF without mass.
+/// `ndf`'s [`NdfTable::half_mass_cone`] on [`REACH_GRID`].
 pub fn half_mass_cone(ndf: &dyn brdf::ndf::Ndf) -> Option<(f64, Vec3)> {
-    let g = REACH_GRID;
-    let np = g.n_phi as usize;
-    let t = NdfTable::from_fn(g, 2, |h| ndf.d(h));
-    let values = t.values();
-    let mass: Vec<f64> = values.iter().enumerate().map(|(k, &v)| v as f64 * g.cos_measure(k / np) as f64).collect();
-    let total: f64 = mass.iter().sum();
-    if !(total > 0.0) || !total.is_finite() {
-        return None;
-    }
-    let mut order: Vec<usize> = (0..values.len()).collect();
-    order.sort_by(|&a, &b| values[b].total_cmp(&values[a]));
-    let (mut held, mut omega) = (0.0f64, 0.0f64);
-    for &k in &order {
-        if held >= 0.5 * total {
-            break;
-        }
-        held += mass[k];
-        omega += g.solid_angle(k / np) as f64;
-    }
-    let angle = (1.0 - omega / std::f64::consts::TAU).clamp(-1.0, 1.0).acos();
-    Some((angle, g.direction(order[0] / np, order[0] % np)))
+    NdfTable::from_fn(REACH_GRID, 2, |h| ndf.d(h)).half_mass_cone().map(|(a, peak)| (a as f64, peak))
 }
 
 /// [`LobeReach`] of the synthetic capture `s`; `None` when no point has a
@@ -259,17 +236,8 @@ pub fn lobe_reach(s: &Synthetic) -> Option<LobeReach> {
         let x = s.ctx.positions[p];
         let Some(ndf) = s.material.at(Vec2::new(x.x, x.y)).ndf().cloned() else { continue };
         let Some((half_mass, peak)) = half_mass_cone(ndf.as_ref()) else { continue };
-        let o = s.ctx.view[p];
-        let nearest = (0..s.ctx.n_lights())
-            .filter_map(|q| s.ctx.sample(p, q).map(|sg| (q, (sg.i + o).normalize_or_zero())))
-            .map(|(q, h)| (q, h.dot(peak).clamp(-1.0, 1.0).acos()))
-            .min_by(|a, b| a.1.total_cmp(&b.1));
-        let Some((q, angle)) = nearest else { continue };
-        found.push([
-            half_mass.to_degrees(),
-            (angle as f64).to_degrees(),
-            (s.ctx.half_vector_spacing(p, q) as f64).to_degrees(),
-        ]);
+        let Some((angle, spacing)) = nearest_half_vector(&s.ctx, p, peak) else { continue };
+        found.push([half_mass.to_degrees(), (angle as f64).to_degrees(), (spacing as f64).to_degrees()]);
     }
     let median = |i: usize| {
         let mut v: Vec<f64> = found.iter().map(|f| f[i]).collect();
@@ -277,6 +245,17 @@ pub fn lobe_reach(s: &Synthetic) -> Option<LobeReach> {
         v[v.len() / 2]
     };
     (!found.is_empty()).then(|| LobeReach { half_mass_deg: median(0), nearest_deg: median(1), spacing_deg: median(2) })
+}
+
+/// The angle from `h` to the nearest half vector of point `p`'s lights
+/// above its horizon, and the half vectors' spacing there
+/// (`fit::FitContext::half_vector_spacing`), radians.
+fn nearest_half_vector(ctx: &fit::FitContext, p: usize, h: Vec3) -> Option<(f32, f32)> {
+    let o = ctx.view[p];
+    (0..ctx.n_lights())
+        .filter_map(|q| ctx.sample(p, q).map(|sg| (q, (sg.i + o).normalize_or_zero().dot(h).clamp(-1.0, 1.0).acos())))
+        .min_by(|a, b| a.1.total_cmp(&b.1))
+        .map(|(q, angle)| (angle, ctx.half_vector_spacing(p, q)))
 }
 
 /// The preset's simulated camera (the rig file's, read at the preset's

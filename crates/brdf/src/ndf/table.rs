@@ -408,6 +408,35 @@ impl NdfTable {
         acc as f32
     }
 
+    /// How concentrated the table's mass is: the half-angle (radians) of
+    /// the cone whose solid angle equals that of the smallest set of cells
+    /// holding half of `integral D cos dw` (the densest cells first), and
+    /// the densest cell's direction. The width does not assume the lobe's
+    /// shape, centre or symmetry; it is no finer than the cells the mass
+    /// sits in. `None` for a table without mass.
+    pub fn half_mass_cone(&self) -> Option<(f32, Vec3)> {
+        let g = self.grid;
+        let np = g.n_phi as usize;
+        let mass: Vec<f64> =
+            self.values.iter().enumerate().map(|(k, &v)| v.max(0.0) as f64 * g.cos_measure(k / np) as f64).collect();
+        let total: f64 = mass.iter().sum();
+        if !(total > 0.0) || !total.is_finite() {
+            return None;
+        }
+        let mut order: Vec<usize> = (0..self.values.len()).collect();
+        order.sort_by(|&a, &b| self.values[b].total_cmp(&self.values[a]));
+        let (mut held, mut omega) = (0.0f64, 0.0f64);
+        for &k in &order {
+            if held >= 0.5 * total {
+                break;
+            }
+            held += mass[k];
+            omega += g.solid_angle(k / np) as f64;
+        }
+        let angle = (1.0 - omega / std::f64::consts::TAU).clamp(-1.0, 1.0).acos() as f32;
+        Some((angle, g.direction(order[0] / np, order[0] % np)))
+    }
+
     /// Scale so that `integral D cos dw = 1`; returns the integral before
     /// scaling (the fitter's `k_s`). A table whose integral is below
     /// [`MIN_NORMALISABLE`] is left unchanged and 0 is returned.
