@@ -21,6 +21,10 @@
 # (`--hdr 1`: one exposure, the presets' before adaptive brackets).
 # --reeval scores the captures already in OUT again with this build's
 # `refl eval` (no new capture: for a change to the eval alone).
+# The last two columns set the true lobe against the rig: the half-angle of
+# the cone holding half the NDF's projected mass and the spacing of the
+# capture's half vectors nearest its peak, degrees (`lobe_reach` in
+# eval.json); a lobe far narrower than the spacing is not resolved.
 # --bin names the directory holding `capture` and `refl` (default: this
 # tree's release build, built first), so two builds can be compared on the
 # same inputs. Without ../shared/data/rgl the RGL rows are skipped, and the
@@ -73,6 +77,9 @@ ha = ho.get("auto") or {}
 single = {k: v["render_rel_rmse"] for k, v in m.items() if k != "auto" and v.get("render_rel_rmse") is not None}
 auto_rel = m.get("auto", {}).get("render_rel_rmse")
 auto_rel = auto_rel / min(single.values()) if auto_rel is not None and single and min(single.values()) > 0 else None
+reach = ev.get("lobe_reach") or {}
+def d(v):
+    return "-" if v is None else f"{v:.2f}"
 def rr(k):
     v = m.get(k, {}).get("render_rel_rmse_resolved")
     return "-" if v is None else f"{v:.4f}"
@@ -81,7 +88,7 @@ print(f"{name:24} {f(syn.get('ndf_rel_l2_observed')):>8} {f(syn.get('ndf_shape_o
       f"{f(syn.get('ndf_rel_l2_full_footprint')):>8} {r('synthesized'):>8} {r('auto'):>8} {(best or '-'):>18} "
       f"{f(analytic.get(best)) if best else '-':>8} {f(ev.get('render_resolution_floor')):>8} "
       f"{rr('synthesized'):>8} {rr('auto'):>8} {f(hs.get('frame_rel_rmse')):>8} {f(ha.get('frame_rel_rmse')):>8} "
-      f"{f(hs.get('noise_floor')):>8} {f(auto_rel):>9}")
+      f"{f(hs.get('noise_floor')):>8} {f(auto_rel):>9} {d(reach.get('half_mass_deg')):>6} {d(reach.get('spacing_deg')):>6}")
 EOF
 }
 
@@ -102,7 +109,7 @@ if [ "$no_geometry" = 1 ] && [ "$reeval" = 0 ]; then
   "$bin/capture" --calibrate white --quality "$quality" --no-daemon "${rig[@]}" >/dev/null 2>"$out/calibrate.log"
 fi
 
-printf '%-24s %8s %8s %8s %8s %8s %8s %8s %18s %8s %8s %8s %8s %8s %8s %8s %9s\n' sample ndf_obs shape ndf_full obs_fp full_fp synth auto best_analytic best res_flr synth_rs auto_rs ho_synth ho_auto floor auto/best
+printf '%-24s %8s %8s %8s %8s %8s %8s %8s %18s %8s %8s %8s %8s %8s %8s %8s %9s %6s %6s\n' sample ndf_obs shape ndf_full obs_fp full_fp synth auto best_analytic best res_flr synth_rs auto_rs ho_synth ho_auto floor auto/best lobe hv_sp
 for s in $("$bin/capture" --list-samples | awk '{print $1}'); do
   scan "$s" --sample "$s"
 done

@@ -589,6 +589,15 @@ fn eval_ranks_the_models_as_the_physics_says() {
     // weights (1e-6 relative).
     let floor = ward["render_resolution_floor"].as_f64().unwrap();
     assert!(floor < 1e-5, "a uniform surface's resolution floor {floor}");
+    // Its Beckmann lobe (alpha 0.1 by 0.3) holds half its slopes in an
+    // ellipse of area `pi ax ay ln 2`: a cone of about `sqrt(ax ay ln 2)`,
+    // up to 4.5% less for the solid angle's `cos^3` at the ellipse's far
+    // end (slope 0.25), and a table ring's width either way.
+    let reach = &ward["lobe_reach"];
+    let cone = reach["half_mass_deg"].as_f64().expect("a simulated capture's lobe against its lights");
+    let expected = (0.1f64 * 0.3 * std::f64::consts::LN_2).sqrt().to_degrees();
+    assert!(cone > 0.95 * expected && cone < 1.01 * expected, "ward's half-mass cone {cone} (about {expected})");
+    assert!(reach["spacing_deg"].as_f64().is_some_and(|s| s > 0.0), "{reach}");
     let syn = &ward["models"]["synthesized"];
     for k in ["ndf_rel_l2_observed", "ndf_rel_l2_full", "ndf_shape_observed"] {
         let (a, b) = (syn[k].as_f64().unwrap(), syn[format!("{k}_footprint")].as_f64().unwrap());

@@ -167,6 +167,11 @@ pub struct Evaluation {
     /// score, the camera's and the point grid's resolution. Simulated
     /// captures only.
     pub render_resolution_floor: Option<f64>,
+    /// The true lobe's width against the capture's spacing of half vectors
+    /// ([`crate::truth::lobe_reach`]): where the lobe is far narrower than
+    /// the spacing, it falls between the lights and no fit recovers it.
+    /// Simulated captures of a material with a specular lobe only.
+    pub lobe_reach: Option<crate::truth::LobeReach>,
     /// The other capture whose observed cells the NDF errors on observed
     /// cells were also restricted to ([`EvalOptions::observed_like`]).
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -497,6 +502,9 @@ pub fn evaluate(dir: &Path, opts: &EvalOptions, rep: &mut dyn Progress) -> Resul
         }
         None => None,
     };
+    ev.lobe_reach = truth
+        .as_ref()
+        .and_then(|t| crate::truth::lobe_reach(&fit::FitContext::new(crate::replay::fit_inputs(&info)), t.as_ref()));
     let truth_tables = truth.as_ref().and_then(|t| {
         rep.stage("eval", "the true NDFs at the scored points and over their footprints".to_string());
         TruthTables::new(&m, &info, t.as_ref(), opts.max_ndf_points)
