@@ -1,7 +1,7 @@
 //! `refl bench budget`: where the fitter's error comes from. The same
-//! synthetic capture (a built-in or imported material evaluated at every light and
-//! point of a quality preset's plan, written straight into the sample
-//! store, see [`crate::bench::synthetic`]) is fitted as the preset would
+//! synthetic capture (a built-in or imported material evaluated at every
+//! light and point of a quality preset's plan, written straight into the
+//! sample store, see [`crate::bench::synthetic`]) is fitted as the preset would
 //! (per point, then pooled; synthesis and the analytic fits are not part of
 //! the budget), then per point alone, then with its noise removed, then
 //! with each of the fitter's resolution knobs loosened. The noiseless rows
@@ -23,9 +23,9 @@
 //! simulated capture includes them, so the difference between its figures
 //! and this table's first row is their share.
 //!
-//! Before the rows, [`crate::truth::lobe_reach`] sets the true lobe's width against the
-//! plan's spacing of half vectors: where the lobe is far narrower, the
-//! error is the sampling's, whatever the fitter does.
+//! Before the rows, [`crate::truth::lobe_reach`] sets the true lobe's
+//! width against the plan's spacing of half vectors: where the lobe is far
+//! narrower, the error is the sampling's, whatever the fitter does.
 //!
 //! Figures per row, pooled over the points with specular in both truth and
 //! fit:

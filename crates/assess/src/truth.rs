@@ -63,7 +63,7 @@ const REACH_STRIDE: usize = 37;
 const REACH_GRID: NdfGrid = NdfGrid { n_theta: 64, n_phi: 128 };
 
 /// `ndf`'s [`NdfTable::half_mass_cone`] on [`REACH_GRID`].
-pub fn half_mass_cone(ndf: &dyn brdf::ndf::Ndf) -> Option<(f64, Vec3)> {
+fn half_mass_cone(ndf: &dyn brdf::ndf::Ndf) -> Option<(f64, Vec3)> {
     NdfTable::from_fn(REACH_GRID, 2, |h| ndf.d(h)).half_mass_cone().map(|(a, peak)| (a as f64, peak))
 }
 
