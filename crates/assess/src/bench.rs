@@ -69,20 +69,8 @@ pub fn synthetic(material: Arc<dyn SvBrdf>, side: u32, steps: u32, led_stride: u
     synthetic_through(material, side, steps, led_stride, noise, None)
 }
 
-/// [`synthetic`], with each point's samples, when `footprint` names a
-/// camera and its sensor's layout, those of the mean BRDF over the
-/// footprint through which that camera would read the point
-/// (`crate::footprint::mean_at`): the one part of the camera's effect that
-/// is not noise (`refl bench budget`'s footprint row). The ground truth the
-/// budget scores against stays the point's centre.
-pub fn synthetic_through(
-    material: Arc<dyn SvBrdf>,
-    side: u32,
-    steps: u32,
-    led_stride: u32,
-    noise: bool,
-    footprint: Option<(setup::CameraModel, frame::Layout)>,
-) -> Result<Synthetic> {
+/// The fit context of [`synthetic`]'s rig and plan, without its samples.
+pub fn synthetic_context(side: u32, steps: u32, led_stride: u32) -> Result<FitContext> {
     let mut g = RigGeometry::default();
     // A camera fine enough that every point has its own pixel.
     g.camera.width = (side * 5 / 4).max(64);
@@ -111,7 +99,25 @@ pub fn synthetic_through(
         bit_depth: 12,
         sensor_layout: None,
     };
-    let ctx = FitContext::new(inputs);
+    Ok(FitContext::new(inputs))
+}
+
+/// [`synthetic`], with each point's samples, when `footprint` names a
+/// camera and its sensor's layout, those of the mean BRDF over the
+/// footprint through which that camera would read the point
+/// (`crate::footprint::mean_at`): the one part of the camera's effect that
+/// is not noise (`refl bench budget`'s footprint row). The ground truth the
+/// budget scores against stays the point's centre.
+pub fn synthetic_through(
+    material: Arc<dyn SvBrdf>,
+    side: u32,
+    steps: u32,
+    led_stride: u32,
+    noise: bool,
+    footprint: Option<(setup::CameraModel, frame::Layout)>,
+) -> Result<Synthetic> {
+    let ctx = synthetic_context(side, steps, led_stride)?;
+    let sample_area = ctx.inputs.geometry.sample;
     let (n, nl) = (ctx.n_points(), ctx.n_lights());
     let mut store = SampleStore::new(n, nl);
     let points: Vec<_> = ctx
@@ -121,7 +127,7 @@ pub fn synthetic_through(
             let pos = Vec2::new(x.x, x.y);
             footprint
                 .and_then(|(cam, layout)| {
-                    crate::footprint::mean_at(&cam, Some(layout), &g.sample, material.as_ref(), pos)
+                    crate::footprint::mean_at(&cam, Some(layout), &sample_area, material.as_ref(), pos)
                 })
                 .unwrap_or_else(|| material.at(pos))
         })

@@ -160,11 +160,8 @@ pub fn run(sample: &str, dir: Option<&std::path::Path>, q: &config::Quality) -> 
         "error budget: '{sample}' at the {} preset: {} x {} points, {} steps x every {} LED, NDF {} x {} cells",
         q.name, q.grid, q.grid, q.steps, q.led_stride, q.fit.grid.n_theta, q.fit.grid.n_phi
     );
-    let reach = {
-        let s = synthetic_through(material.clone(), q.grid, q.steps, q.led_stride as u32, false, None)?;
-        crate::truth::lobe_reach(&s.ctx, s.material.as_ref())
-    };
-    match reach {
+    let ctx = crate::bench::synthetic_context(q.grid, q.steps, q.led_stride as u32)?;
+    match crate::truth::lobe_reach(&ctx, material.as_ref()) {
         Some(r) => println!(
             "truth against the rig (median over points): half the NDF's mass within a cone of {:.2} degrees; the \
              light whose half vector comes nearest the NDF's peak lands {:.2} degrees from it, and the preset's half \
