@@ -230,12 +230,17 @@ pub fn best_rotation(
 pub struct Flat {
     pub values: Vec<f32>,
     pub mask: Vec<f32>,
+    /// Per ring: the observed cells (the sum of `mask` over the ring, in
+    /// sector order), and whether any is observed.
+    ring_observed: Vec<f32>,
 }
 
 impl Flat {
     pub fn new(t: &NdfTable) -> Self {
-        let mask = (0..t.grid().len()).map(|c| if t.coverage().get(c) { 1.0 } else { 0.0 }).collect();
-        Self { values: t.values().to_vec(), mask }
+        let g = t.grid();
+        let mask: Vec<f32> = (0..g.len()).map(|c| if t.coverage().get(c) { 1.0 } else { 0.0 }).collect();
+        let ring_observed = mask.chunks_exact(g.n_phi as usize).map(|r| r.iter().fold(0.0f32, |a, &m| a + m)).collect();
+        Self { values: t.values().to_vec(), mask, ring_observed }
     }
 }
 
@@ -243,6 +248,11 @@ impl Flat {
 /// cells (for re-ranking a handful of candidates found by nearest
 /// neighbours). A fractional shift blends the two neighbouring sectors; a
 /// rotated cell counts as observed only if both sources were.
+///
+/// Each ring's candidate is turned into a buffer first and the sums run
+/// over it in sector order; the query's own sums (its observed and missing
+/// measure) are [`Flat`]'s, and a ring the candidate did not observe adds
+/// nothing but them, so it is skipped.
 pub fn score_at(
     grid: brdf::ndf::NdfGrid,
     query: &Flat,
@@ -254,30 +264,37 @@ pub fn score_at(
     let np = grid.n_phi as usize;
     let (s0, f) = brdf::ndf::split_shift(shift, np);
     let (mut a, mut b, mut c, mut n, mut gain, mut observed, mut missing) = (0.0f64, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+    let (mut turned_values, mut turned_mask) = (vec![0.0f32; np], vec![0.0f32; np]);
     for t in 0..grid.n_theta as usize {
         let w = grid.cos_measure(t) as f64;
         let row = t * np;
-        let (mut ra, mut rb, mut rc, mut rn, mut rg, mut ro, mut rm) = (0.0f32, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+        let ro = query.ring_observed[t];
+        observed += w * ro as f64;
+        missing += w * (np as f32 - ro) as f64;
+        if candidate.ring_observed[t] == 0.0 {
+            continue;
+        }
         for (p, (i0, i1)) in brdf::ndf::rotation_sources(np, s0).enumerate() {
-            let (k, i0, i1) = (row + p, row + i0, row + i1);
-            let mq = if f == 0.0 { candidate.mask[i0] } else { candidate.mask[i0] * candidate.mask[i1] };
-            let dq = candidate.values[i0] * (1.0 - f) + candidate.values[i1] * f;
-            let (mp, dp) = (query.mask[k], query.values[k]);
-            ra += mp * mq * dp * dq;
-            rb += mp * mq * dp * dp;
-            rc += mp * mq * dq * dq;
-            rn += mp * mq;
+            let (i0, i1) = (row + i0, row + i1);
+            turned_mask[p] = if f == 0.0 { candidate.mask[i0] } else { candidate.mask[i0] * candidate.mask[i1] };
+            turned_values[p] = candidate.values[i0] * (1.0 - f) + candidate.values[i1] * f;
+        }
+        let (mut ra, mut rb, mut rc, mut rn, mut rg) = (0.0f32, 0.0, 0.0, 0.0, 0.0);
+        let query_ring = query.mask[row..row + np].iter().zip(&query.values[row..row + np]);
+        for ((&mp, &dp), (&mq, &dq)) in query_ring.zip(turned_mask.iter().zip(&turned_values)) {
+            let m = mp * mq;
+            let x = m * dp;
+            ra += x * dq;
+            rb += x * dp;
+            rc += m * dq * dq;
+            rn += m;
             rg += (1.0 - mp) * mq;
-            ro += mp;
-            rm += 1.0 - mp;
         }
         a += w * ra as f64;
         b += w * rb as f64;
         c += w * rc as f64;
         n += w * rn as f64;
         gain += w * rg as f64;
-        observed += w * ro as f64;
-        missing += w * rm as f64;
     }
     if observed <= 0.0
         || n < min_overlap as f64 * observed
