@@ -240,7 +240,16 @@ pub fn ndf_error(s: &Synthetic, flags: &[u32], tables: &TableSet) -> f64 {
 }
 
 /// `refl bench synthesis`.
-pub fn synthesis(sample: &str, side: u32, steps: u32, modes: &[SearchMode], clusters: Option<u32>) -> Result<()> {
+pub fn synthesis(
+    sample: &str,
+    side: u32,
+    steps: u32,
+    modes: &[SearchMode],
+    clusters: Option<u32>,
+    search: (Option<u32>, Option<u32>),
+) -> Result<()> {
+    let base = SynthSettings::default();
+    let (rotations, neighbours) = (search.0.unwrap_or(base.rotations), search.1.unwrap_or(base.neighbours));
     let material = crate::truth::sim_material(sample, None)?;
     let s = synthetic(material, side, steps, 1, true)?;
     let n = s.ctx.n_points();
@@ -250,14 +259,14 @@ pub fn synthesis(sample: &str, side: u32, steps: u32, modes: &[SearchMode], clus
     let eligible: Vec<bool> = maps.flags.iter().map(|f| f & fit::point_flag::NO_SPECULAR == 0).collect();
     let clusters = clusters.unwrap_or((n as u32 / 100).clamp(8, 1000));
     println!(
-        "synthesis benchmark: '{sample}', N = {n} points ({} with specular), {clusters} clusters, {} threads",
+        "synthesis benchmark: '{sample}', N = {n} points ({} with specular), {clusters} clusters, {rotations} rotation angles, {neighbours} neighbours, {} threads",
         eligible.iter().filter(|&&e| e).count(),
         rayon::current_num_threads()
     );
     println!("  partial tables: NDF error over the hemisphere {:.4}", ndf_error(&s, &maps.flags, &maps.tables));
     for &mode in modes {
         let t = Instant::now();
-        let out = synthesize(&maps.tables, &eligible, &SynthSettings { mode, clusters, ..SynthSettings::default() });
+        let out = synthesize(&maps.tables, &eligible, &SynthSettings { mode, clusters, rotations, neighbours, ..base.clone() });
         let dt = t.elapsed().as_secs_f64();
         println!(
             "  {mode:?}: {:.2} s ({:.0} points/s), {} candidates scored, {} pruned, NDF error {:.4}; peak memory {}",

@@ -325,6 +325,13 @@ enum BenchCmd {
         /// k-means clusters (default N / 100, 8 to 1000).
         #[arg(long)]
         clusters: Option<u32>,
+        /// Rotation angles searched (default: the synthesis's, 96).
+        #[arg(long)]
+        rotations: Option<u32>,
+        /// Nearest (cluster, rotation) pairs looked up per point by the
+        /// accelerated search (default: the synthesis's, 48).
+        #[arg(long)]
+        neighbours: Option<u32>,
     },
 }
 
@@ -587,9 +594,11 @@ fn main() -> ExitCode {
                         assess::bench::fit(&sample, points, steps, led_stride, ndf_theta, !no_synthesis)
                     })
                 }
-                BenchCmd::Synthesis { sample, points, steps, modes, clusters } => {
+                BenchCmd::Synthesis { sample, points, steps, modes, clusters, rotations, neighbours } => {
                     let modes = assess::bench::parse_modes(&modes)?;
-                    tokio::task::block_in_place(|| assess::bench::synthesis(&sample, points, steps, &modes, clusters))
+                    tokio::task::block_in_place(|| {
+                        assess::bench::synthesis(&sample, points, steps, &modes, clusters, (rotations, neighbours))
+                    })
                 }
             },
             Cmd::SimMcu { faults, link, device, time_scale } => {

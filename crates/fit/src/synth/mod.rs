@@ -28,7 +28,9 @@
 //!   descriptors of every cluster at every rotation ([`descriptor`]): each
 //!   query looks up its nearest (cluster, rotation) pairs, prunes those whose
 //!   coarse coverage cannot overlap or add anything, and scores the rest
-//!   exactly at that one rotation.
+//!   exactly at that one rotation. Where the rotations are finer than the
+//!   table's sectors, the tree holds whole sectors and each cluster found
+//!   takes its nearest finer angle within a sector.
 
 pub mod cluster;
 pub mod descriptor;
@@ -67,7 +69,8 @@ pub struct SynthSettings {
     pub blend: u32,
     /// Overlap required, as a fraction of the query's observed measure.
     pub min_overlap: f32,
-    /// Nearest (cluster, rotation) pairs looked up per query.
+    /// Nearest (cluster, rotation) pairs looked up per query (rotations
+    /// at whole sectors where `rotations` is at least twice `n_phi`).
     pub neighbours: u32,
     /// Passes (the second matches against completed tables).
     pub passes: u32,
@@ -258,8 +261,31 @@ pub fn synthesize_watched(
                         d
                     })
                     .collect();
-                let nn = (s.neighbours.max(1) as usize).min(candidates.len() * m_rot);
-                let lookups = nearest(&db, &descriptors, dlen, nn);
+                // With two or more angles per sector, the nearest-neighbour
+                // search runs over each cluster at whole sectors only
+                // (`coarse`), and each cluster it finds is then turned to its
+                // nearest angle within a sector either side
+                // ([`finest_rotation`]). A cluster's neighbouring angles
+                // crowded the search over every angle: at 1,000 angles its
+                // 48 neighbours held a few clusters, ten or so angles each,
+                // and the k-d tree over a million entries took most of the
+                // search's time. Below two angles per sector (the presets'
+                // `fast` and `balanced`) every angle is searched, as before.
+                let coarse = grid.n_phi as usize;
+                let step = m_rot / coarse;
+                let coarse_db: Vec<f32> = if step == 1 {
+                    Vec::new()
+                } else {
+                    (0..candidates.len() * coarse)
+                        .flat_map(|e| {
+                            let fine = (e / coarse) * m_rot + (e % coarse) * m_rot / coarse;
+                            db[fine * dlen..(fine + 1) * dlen].iter().copied()
+                        })
+                        .collect()
+                };
+                let (tree_db, tree_rot) = if step == 1 { (&db, m_rot) } else { (&coarse_db, coarse) };
+                let nn = (s.neighbours.max(1) as usize).min(candidates.len() * tree_rot);
+                let lookups = nearest(tree_db, &descriptors, dlen, nn);
                 let flats: Vec<Flat> = candidates.iter().map(Flat::new).collect();
                 points
                     .par_iter()
@@ -272,13 +298,19 @@ pub fn synthesize_watched(
                         let mut found: Vec<Match> = Vec::new();
                         let mut seen: Vec<usize> = Vec::new();
                         for &e in &lookups[qi] {
-                            let (c, r) = (e / m_rot, e % m_rot);
+                            let (c, r) = (e / tree_rot, e % tree_rot);
                             // Neighbouring rotations of one cluster crowd the
                             // list; its nearest rotation stands for it.
                             if seen.contains(&c) {
                                 continue;
                             }
                             seen.push(c);
+                            let r = if step == 1 {
+                                r
+                            } else {
+                                let query = &descriptors[qi * dlen..(qi + 1) * dlen];
+                                finest_rotation(&db[c * m_rot * dlen..(c + 1) * m_rot * dlen], dlen, query, r * m_rot / coarse, m_rot.div_ceil(coarse))
+                            };
                             let shift = r as f32 * np / m_rot as f32;
                             let (ov, gain) = coarse_overlap_gain(&qm, &rotate_mask(&masks[c], shift, grid.n_phi));
                             if ov < need || gain == 0 {
@@ -345,6 +377,23 @@ pub fn synthesize_watched(
     SynthOutput { tables, mass_factor: mass, stats }
 }
 
+/// Of one cluster's descriptors at `rotations` angles (`db`, row-major,
+/// `dim` long), the angle nearest to `query` within `reach` angles either
+/// side of `around` (the lowest distance; the first such angle counting
+/// from `around - reach`).
+fn finest_rotation(db: &[f32], dim: usize, query: &[f32], around: usize, reach: usize) -> usize {
+    let rotations = db.len() / dim;
+    let mut best = (around, f32::INFINITY);
+    for k in 0..=2 * reach {
+        let r = (around + rotations + k - reach) % rotations;
+        let d: f32 = db[r * dim..(r + 1) * dim].iter().zip(query).map(|(a, b)| (a - b) * (a - b)).sum();
+        if d < best.1 {
+            best = (r, d);
+        }
+    }
+    best.0
+}
+
 /// Database size above which nearest neighbours use the k-d tree.
 const TREE_ENTRIES: usize = 50_000;
 
@@ -405,4 +454,25 @@ fn nearest(db: &[f32], queries: &[f32], dim: usize, n: usize) -> Vec<Vec<usize>>
             })
             .collect()
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::finest_rotation;
+
+    #[test]
+    fn the_finest_rotation_is_the_nearest_within_reach_around_the_ring() {
+        // One cluster at 12 angles, 2-long descriptors: angle r sits at
+        // (r, 0); the query nearest angle 11, then angle 0.
+        let db: Vec<f32> = (0..12).flat_map(|r| [r as f32, 0.0]).collect();
+        let query = [11.2, 0.0];
+        // Around 0, one angle either side reaches 11 across the wrap.
+        assert_eq!(finest_rotation(&db, 2, &query, 0, 1), 11);
+        // Around 3, the nearest within reach is the edge nearest the query.
+        assert_eq!(finest_rotation(&db, 2, &query, 3, 2), 5);
+        // No reach: the angle it starts from.
+        assert_eq!(finest_rotation(&db, 2, &query, 7, 0), 7);
+        // Equal distances: the first counting from `around - reach`.
+        assert_eq!(finest_rotation(&db, 2, &[5.5, 0.0], 5, 1), 5);
+    }
 }
