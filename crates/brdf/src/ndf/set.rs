@@ -47,16 +47,7 @@ impl TableSet {
     pub fn get(&self, k: usize) -> NdfTable {
         let cells = self.grid.len();
         let values: Vec<f32> = self.values[k * cells..(k + 1) * cells].iter().map(|v| v.to_f32().max(0.0)).collect();
-        let mut cov = Coverage::empty(cells);
-        let w = self.words();
-        for (i, word) in self.coverage[k * w..(k + 1) * w].iter().enumerate() {
-            for b in 0..64 {
-                let c = i * 64 + b;
-                if c < cells && (word >> b) & 1 == 1 {
-                    cov.set(c, true);
-                }
-            }
-        }
+        let cov = Coverage::from_words(cells, self.coverage_words(k));
         // Lengths match by construction and values are finite and >= 0.
         NdfTable::from_values(self.grid, values, cov).unwrap_or_else(|_| NdfTable::zeros(self.grid))
     }

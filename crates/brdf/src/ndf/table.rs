@@ -235,6 +235,18 @@ impl Coverage {
         Self { len, bits: vec![0; len.div_ceil(64)] }
     }
 
+    /// The coverage of `len` cells whose bits are `words` (cell `i` is bit
+    /// `i % 64` of word `i / 64`; bits past `len` are ignored).
+    pub fn from_words(len: usize, words: &[u64]) -> Self {
+        let mut bits = words[..len.div_ceil(64)].to_vec();
+        if len % 64 != 0
+            && let Some(last) = bits.last_mut()
+        {
+            *last &= (1u64 << (len % 64)) - 1;
+        }
+        Self { len, bits }
+    }
+
     pub fn full(len: usize) -> Self {
         let mut c = Self::empty(len);
         for i in 0..len {

@@ -18,7 +18,7 @@ pub const DISTANCE_FLOOR: f32 = 0.02;
 
 /// The query completed by its matches (`None` if they add nothing). The
 /// result is not renormalised.
-pub fn complete(query: &NdfTable, matches: &[(Match, NdfTable)]) -> Option<NdfTable> {
+pub fn complete(query: &NdfTable, matches: &[(Match, &NdfTable)]) -> Option<NdfTable> {
     let g = query.grid();
     let rotated: Vec<(f32, f32, NdfTable)> = matches
         .iter()

@@ -339,7 +339,7 @@ pub fn synthesize_watched(
                 if ms.is_empty() {
                     return None;
                 }
-                let with: Vec<(Match, NdfTable)> = ms.iter().map(|m| (*m, candidates[m.candidate].clone())).collect();
+                let with: Vec<(Match, &NdfTable)> = ms.iter().map(|m| (*m, &candidates[m.candidate])).collect();
                 fill::complete(&tables.get(p), &with)
             })
             .collect();

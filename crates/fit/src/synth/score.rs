@@ -225,34 +225,91 @@ pub fn best_rotation(
     best
 }
 
-/// A table as flat arrays (values and a 0/1 mask) for [`score_at`].
+/// A table as flat arrays for [`score_at`]: each ring's values and 0/1
+/// mask twice over (`[ring | ring]`), so that the ring turned by any whole
+/// number of sectors is one contiguous slice of it.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Flat {
-    pub values: Vec<f32>,
-    pub mask: Vec<f32>,
-    /// Per ring: the observed cells (the sum of `mask` over the ring, in
-    /// sector order), and whether any is observed.
+    values: Vec<f32>,
+    mask: Vec<f32>,
+    n_phi: usize,
+    /// Per ring: the observed cells.
     ring_observed: Vec<f32>,
 }
 
 impl Flat {
     pub fn new(t: &NdfTable) -> Self {
         let g = t.grid();
-        let mask: Vec<f32> = (0..g.len()).map(|c| if t.coverage().get(c) { 1.0 } else { 0.0 }).collect();
-        let ring_observed = mask.chunks_exact(g.n_phi as usize).map(|r| r.iter().fold(0.0f32, |a, &m| a + m)).collect();
-        Self { values: t.values().to_vec(), mask, ring_observed }
+        let np = g.n_phi as usize;
+        let (mut values, mut mask) = (Vec::with_capacity(2 * g.len()), Vec::with_capacity(2 * g.len()));
+        let mut ring_observed = Vec::with_capacity(g.n_theta as usize);
+        for (ring, row) in t.values().chunks_exact(np).enumerate() {
+            let m: Vec<f32> = (0..np).map(|p| if t.coverage().get(ring * np + p) { 1.0 } else { 0.0 }).collect();
+            ring_observed.push(m.iter().sum());
+            for _ in 0..2 {
+                values.extend_from_slice(row);
+                mask.extend_from_slice(&m);
+            }
+        }
+        Self { values, mask, n_phi: np, ring_observed }
     }
+
+    /// Ring `t` as stored (its first copy).
+    fn ring(&self, t: usize) -> (&[f32], &[f32]) {
+        let at = 2 * t * self.n_phi;
+        (&self.values[at..at + self.n_phi], &self.mask[at..at + self.n_phi])
+    }
+
+    /// Ring `t` turned by `s0` whole sectors (`s0 < n_phi`): sector `p` of
+    /// the slices is the ring's sector `p - s0`.
+    fn turned(&self, t: usize, s0: usize) -> (&[f32], &[f32]) {
+        let at = 2 * t * self.n_phi + self.n_phi - s0;
+        (&self.values[at..at + self.n_phi], &self.mask[at..at + self.n_phi])
+    }
+}
+
+/// Lanes of [`score_at`]'s sums: each ring is summed in this many partial
+/// sums, sector `p` into lane `p % LANES`, which the compiler keeps in
+/// vector registers.
+const LANES: usize = 8;
+
+/// One ring's sums over the overlap (see the module's notes): `A`, `B`,
+/// `C`, `N` and `G` before the ring's weight. `a0` and `m0` are the
+/// candidate turned by the whole sectors of the shift, `a1` and `m1` by one
+/// more; `f` blends them, and a blended cell counts as observed only if
+/// both were (`blend`).
+fn ring_sums(qv: &[f32], qm: &[f32], a0: (&[f32], &[f32]), a1: (&[f32], &[f32]), f: f32, blend: bool) -> [f32; 5] {
+    let mut acc = [[0.0f32; LANES]; 5];
+    let n = qv.len() - qv.len() % LANES;
+    let cell = |acc: &mut [[f32; LANES]; 5], l: usize, i: usize| {
+        let mq = if blend { a0.1[i] * a1.1[i] } else { a0.1[i] };
+        let dq = a0.0[i] * (1.0 - f) + a1.0[i] * f;
+        let (mp, dp) = (qm[i], qv[i]);
+        let m = mp * mq;
+        let x = m * dp;
+        acc[0][l] += x * dq;
+        acc[1][l] += x * dp;
+        acc[2][l] += m * dq * dq;
+        acc[3][l] += m;
+        acc[4][l] += (1.0 - mp) * mq;
+    };
+    for base in (0..n).step_by(LANES) {
+        for l in 0..LANES {
+            cell(&mut acc, l, base + l);
+        }
+    }
+    for i in n..qv.len() {
+        cell(&mut acc, 0, i);
+    }
+    acc.map(|lanes| lanes.iter().sum())
 }
 
 /// The same quantities at one given rotation, by direct summation over the
 /// cells (for re-ranking a handful of candidates found by nearest
 /// neighbours). A fractional shift blends the two neighbouring sectors; a
-/// rotated cell counts as observed only if both sources were.
-///
-/// Each ring's candidate is turned into a buffer first and the sums run
-/// over it in sector order; the query's own sums (its observed and missing
-/// measure) are [`Flat`]'s, and a ring the candidate did not observe adds
-/// nothing but them, so it is skipped.
+/// rotated cell counts as observed only if both sources were. A ring the
+/// candidate did not observe adds nothing but the query's own measure, so
+/// it is skipped.
 pub fn score_at(
     grid: brdf::ndf::NdfGrid,
     query: &Flat,
@@ -263,33 +320,18 @@ pub fn score_at(
 ) -> Option<Match> {
     let np = grid.n_phi as usize;
     let (s0, f) = brdf::ndf::split_shift(shift, np);
+    let s1 = if s0 + 1 == np { 0 } else { s0 + 1 };
     let (mut a, mut b, mut c, mut n, mut gain, mut observed, mut missing) = (0.0f64, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
-    let (mut turned_values, mut turned_mask) = (vec![0.0f32; np], vec![0.0f32; np]);
     for t in 0..grid.n_theta as usize {
         let w = grid.cos_measure(t) as f64;
-        let row = t * np;
         let ro = query.ring_observed[t];
         observed += w * ro as f64;
         missing += w * (np as f32 - ro) as f64;
         if candidate.ring_observed[t] == 0.0 {
             continue;
         }
-        for (p, (i0, i1)) in brdf::ndf::rotation_sources(np, s0).enumerate() {
-            let (i0, i1) = (row + i0, row + i1);
-            turned_mask[p] = if f == 0.0 { candidate.mask[i0] } else { candidate.mask[i0] * candidate.mask[i1] };
-            turned_values[p] = candidate.values[i0] * (1.0 - f) + candidate.values[i1] * f;
-        }
-        let (mut ra, mut rb, mut rc, mut rn, mut rg) = (0.0f32, 0.0, 0.0, 0.0, 0.0);
-        let query_ring = query.mask[row..row + np].iter().zip(&query.values[row..row + np]);
-        for ((&mp, &dp), (&mq, &dq)) in query_ring.zip(turned_mask.iter().zip(&turned_values)) {
-            let m = mp * mq;
-            let x = m * dp;
-            ra += x * dq;
-            rb += x * dp;
-            rc += m * dq * dq;
-            rn += m;
-            rg += (1.0 - mp) * mq;
-        }
+        let (qv, qm) = query.ring(t);
+        let [ra, rb, rc, rn, rg] = ring_sums(qv, qm, candidate.turned(t, s0), candidate.turned(t, s1), f, f != 0.0);
         a += w * ra as f64;
         b += w * rb as f64;
         c += w * rc as f64;
