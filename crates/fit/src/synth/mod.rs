@@ -134,9 +134,15 @@ pub struct SynthOutput {
     pub stats: SynthStats,
 }
 
-fn coverage_measure(t: &NdfTable) -> f64 {
-    let g = t.grid();
-    (0..g.len()).filter(|&c| t.coverage().get(c)).map(|c| g.cos_measure(c / g.n_phi as usize) as f64).sum::<f64>()
+/// The share of the hemisphere's cosine measure that table `p` of `set`
+/// observed.
+fn coverage_measure(set: &TableSet, p: usize) -> f64 {
+    let g = set.grid();
+    let words = set.coverage_words(p);
+    (0..g.len())
+        .filter(|&c| (words[c / 64] >> (c % 64)) & 1 == 1)
+        .map(|c| g.cos_measure(c / g.n_phi as usize) as f64)
+        .sum::<f64>()
         / std::f64::consts::PI
 }
 
@@ -201,7 +207,7 @@ pub fn synthesize_watched(
         return SynthOutput { tables, mass_factor: mass, stats };
     }
     let plans = Plans::new(grid, s.rotations as usize);
-    let before: Vec<f64> = points.iter().map(|&p| coverage_measure(&input.get(p))).collect();
+    let before: Vec<f64> = points.iter().map(|&p| coverage_measure(input, p)).collect();
     let blend = s.blend.max(1) as usize;
     for _pass in 0..s.passes.max(1) {
         // Candidates: other points, or cluster means.
@@ -354,12 +360,13 @@ pub fn synthesize_watched(
         }
         stats.fill_seconds += t2.elapsed().as_secs_f64();
     }
-    let after: Vec<f64> = points.iter().map(|&p| coverage_measure(&tables.get(p))).collect();
+    let after: Vec<f64> = points.iter().map(|&p| coverage_measure(&tables, p)).collect();
     stats.completed = before.iter().zip(&after).filter(|(b, a)| a > b).count();
     stats.mean_added_coverage = before.iter().zip(&after).map(|(b, a)| a - b).sum::<f64>() / points.len() as f64;
     if s.tail {
         let t = Instant::now();
-        let filled: Vec<Option<NdfTable>> = points.par_iter().map(|&p| tail::fill(&tables.get(p))).collect();
+        let slopes = tail::Slopes::new(grid);
+        let filled: Vec<Option<NdfTable>> = points.par_iter().map(|&p| tail::fill_with(&tables.get(p), &slopes)).collect();
         let mut tail_mass = 0.0;
         for (&p, f) in points.iter().zip(filled) {
             let Some(mut f) = f else { continue };

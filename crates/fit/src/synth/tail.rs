@@ -50,20 +50,45 @@ fn features(x: f64, y: f64) -> Vector6<f64> {
 /// from a lobe fitted to its covered ones and marked covered; `None` when
 /// nothing is empty or the fit fails. Not renormalised.
 pub fn fill(table: &NdfTable) -> Option<NdfTable> {
+    fill_with(table, &Slopes::new(table.grid()))
+}
+
+/// Per cell of a grid, `cos^4` of its centre's polar angle and its slopes
+/// `(x / z, y / z)`; `None` at the horizon. The same for every table on
+/// the grid: find it once for many ([`fill_with`]).
+#[derive(Debug)]
+pub struct Slopes {
+    grid: brdf::ndf::NdfGrid,
+    cells: Vec<Option<(f64, f64, f64)>>,
+}
+
+impl Slopes {
+    pub fn new(g: brdf::ndf::NdfGrid) -> Self {
+        let np = g.n_phi as usize;
+        let cells = (0..g.len())
+            .map(|c| {
+                let h = g.direction(c / np, c % np);
+                let z = h.z as f64;
+                (z > 1e-3).then(|| (z * z * z * z, h.x as f64 / z, h.y as f64 / z))
+            })
+            .collect();
+        Self { grid: g, cells }
+    }
+}
+
+/// [`fill`] with the grid's [`Slopes`] found before (for `table`'s grid;
+/// another grid's are found again).
+pub fn fill_with(table: &NdfTable, slopes: &Slopes) -> Option<NdfTable> {
     let g = table.grid();
+    if slopes.grid != g {
+        return fill(table);
+    }
     let (nt, np) = (g.n_theta as usize, g.n_phi as usize);
     let cov = table.coverage();
     if cov.count() == g.len() {
         return None;
     }
-    let slopes: Vec<Option<(f64, f64, f64)>> = (0..g.len())
-        .map(|c| {
-            let h = g.direction(c / np, c % np);
-            let z = h.z as f64;
-            // cos^4 theta, and the slopes.
-            (z > 1e-3).then(|| (z * z * z * z, h.x as f64 / z, h.y as f64 / z))
-        })
-        .collect();
+    let slopes = &slopes.cells;
     let values = table.values();
     let (top, peak) = cov.iter_set().map(|c| (c, values[c])).fold((0, 0.0f32), |a, b| if b.1 > a.1 { b } else { a });
     if !(peak > 0.0) || !peak.is_finite() {
