@@ -147,30 +147,36 @@ fn coverage_measure(set: &TableSet, p: usize) -> f64 {
 }
 
 /// Cluster mean tables: per cell the mean over members that observed it;
-/// observed where at least half of the members did.
+/// observed where at least half of the members did. Each cluster's sums
+/// run over its members in the order of `points`.
 fn cluster_tables(tables: &TableSet, points: &[usize], assign: &[u32], k: usize) -> Vec<NdfTable> {
     let g = tables.grid();
     let cells = g.len();
-    let mut sum = vec![vec![0.0f64; cells]; k];
-    let mut cnt = vec![vec![0u32; cells]; k];
-    let mut members = vec![0u32; k];
+    let mut members = vec![Vec::new(); k];
     for (i, &p) in points.iter().enumerate() {
-        let c = assign[i] as usize;
-        members[c] += 1;
-        let t = tables.get(p);
-        for cell in 0..cells {
-            if t.coverage().get(cell) {
-                sum[c][cell] += t.values()[cell] as f64;
-                cnt[c][cell] += 1;
-            }
-        }
+        members[assign[i] as usize].push(p);
     }
-    (0..k)
-        .map(|c| {
+    members
+        .par_iter()
+        .map(|members| {
+            let mut sum = vec![0.0f64; cells];
+            let mut cnt = vec![0u32; cells];
+            let mut values = vec![0.0f32; cells];
+            for &p in members {
+                tables.values_into(p, &mut values);
+                let words = tables.coverage_words(p);
+                for cell in 0..cells {
+                    if (words[cell / 64] >> (cell % 64)) & 1 == 1 {
+                        sum[cell] += values[cell].max(0.0) as f64;
+                        cnt[cell] += 1;
+                    }
+                }
+            }
+            let n = members.len() as u32;
             let mut t = NdfTable::zeros(g);
             for cell in 0..cells {
-                if members[c] > 0 && 2 * cnt[c][cell] >= members[c] && cnt[c][cell] > 0 {
-                    t.values_mut()[cell] = (sum[c][cell] / cnt[c][cell] as f64) as f32;
+                if n > 0 && 2 * cnt[cell] >= n && cnt[cell] > 0 {
+                    t.values_mut()[cell] = (sum[cell] / cnt[cell] as f64) as f32;
                     t.coverage_mut().set(cell, true);
                 }
             }
@@ -297,9 +303,8 @@ pub fn synthesize_watched(
                     .par_iter()
                     .enumerate()
                     .map(|(qi, &p)| {
-                        let q = tables.get(p);
-                        let qf = Flat::new(&q);
-                        let qm = coarse_mask(grid, q.coverage().words());
+                        let qf = Flat::query(&tables, p);
+                        let qm = coarse_mask(grid, tables.coverage_words(p));
                         let need = (s.min_overlap * qm.iter().map(|r| r.count_ones()).sum::<u32>() as f32 * 0.8) as u32;
                         let mut found: Vec<Match> = Vec::new();
                         let mut seen: Vec<usize> = Vec::new();

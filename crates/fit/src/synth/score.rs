@@ -225,44 +225,62 @@ pub fn best_rotation(
     best
 }
 
-/// A table as flat arrays for [`score_at`]: each ring's values and 0/1
-/// mask twice over (`[ring | ring]`), so that the ring turned by any whole
-/// number of sectors is one contiguous slice of it.
+/// A table as flat arrays for [`score_at`]: values and a 0/1 mask. A
+/// candidate's ([`Flat::new`]) hold each ring twice over (`[ring |
+/// ring]`), so that the ring turned by any whole number of sectors is one
+/// contiguous slice of it; a query's ([`Flat::query`]) once.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Flat {
     values: Vec<f32>,
     mask: Vec<f32>,
     n_phi: usize,
+    /// Copies of each ring (2 for a candidate, 1 for a query).
+    copies: usize,
     /// Per ring: the observed cells.
     ring_observed: Vec<f32>,
 }
 
 impl Flat {
+    /// A candidate's.
     pub fn new(t: &NdfTable) -> Self {
-        let g = t.grid();
+        Self::build(t.grid(), t.values(), t.coverage().words(), 2)
+    }
+
+    /// Table `p` of `set` as a query (values below zero read as zero, as
+    /// [`TableSet::get`](brdf::ndf::TableSet::get) reads them).
+    pub fn query(set: &brdf::ndf::TableSet, p: usize) -> Self {
+        let mut values = vec![0.0f32; set.grid().len()];
+        set.values_into(p, &mut values);
+        values.iter_mut().for_each(|v| *v = v.max(0.0));
+        Self::build(set.grid(), &values, set.coverage_words(p), 1)
+    }
+
+    fn build(g: NdfGrid, table: &[f32], words: &[u64], copies: usize) -> Self {
         let np = g.n_phi as usize;
-        let (mut values, mut mask) = (Vec::with_capacity(2 * g.len()), Vec::with_capacity(2 * g.len()));
+        let (mut values, mut mask) = (Vec::with_capacity(copies * g.len()), Vec::with_capacity(copies * g.len()));
         let mut ring_observed = Vec::with_capacity(g.n_theta as usize);
-        for (ring, row) in t.values().chunks_exact(np).enumerate() {
-            let m: Vec<f32> = (0..np).map(|p| if t.coverage().get(ring * np + p) { 1.0 } else { 0.0 }).collect();
+        for (ring, row) in table.chunks_exact(np).enumerate() {
+            let observed = |p: usize| (words[(ring * np + p) / 64] >> ((ring * np + p) % 64)) & 1 == 1;
+            let m: Vec<f32> = (0..np).map(|p| if observed(p) { 1.0 } else { 0.0 }).collect();
             ring_observed.push(m.iter().sum());
-            for _ in 0..2 {
+            for _ in 0..copies {
                 values.extend_from_slice(row);
                 mask.extend_from_slice(&m);
             }
         }
-        Self { values, mask, n_phi: np, ring_observed }
+        Self { values, mask, n_phi: np, copies, ring_observed }
     }
 
     /// Ring `t` as stored (its first copy).
     fn ring(&self, t: usize) -> (&[f32], &[f32]) {
-        let at = 2 * t * self.n_phi;
+        let at = self.copies * t * self.n_phi;
         (&self.values[at..at + self.n_phi], &self.mask[at..at + self.n_phi])
     }
 
     /// Ring `t` turned by `s0` whole sectors (`s0 < n_phi`): sector `p` of
-    /// the slices is the ring's sector `p - s0`.
+    /// the slices is the ring's sector `p - s0`. A candidate's only.
     fn turned(&self, t: usize, s0: usize) -> (&[f32], &[f32]) {
+        assert_eq!(self.copies, 2, "a query's table is not turned");
         let at = 2 * t * self.n_phi + self.n_phi - s0;
         (&self.values[at..at + self.n_phi], &self.mask[at..at + self.n_phi])
     }
