@@ -213,7 +213,7 @@ pub fn synthesize_watched(
         return SynthOutput { tables, mass_factor: mass, stats };
     }
     let plans = Plans::new(grid, s.rotations as usize);
-    let before: Vec<f64> = points.iter().map(|&p| coverage_measure(input, p)).collect();
+    let before: Vec<f64> = points.par_iter().map(|&p| coverage_measure(input, p)).collect();
     let blend = s.blend.max(1) as usize;
     for _pass in 0..s.passes.max(1) {
         // Candidates: other points, or cluster means.
@@ -365,7 +365,7 @@ pub fn synthesize_watched(
         }
         stats.fill_seconds += t2.elapsed().as_secs_f64();
     }
-    let after: Vec<f64> = points.iter().map(|&p| coverage_measure(&tables, p)).collect();
+    let after: Vec<f64> = points.par_iter().map(|&p| coverage_measure(&tables, p)).collect();
     stats.completed = before.iter().zip(&after).filter(|(b, a)| a > b).count();
     stats.mean_added_coverage = before.iter().zip(&after).map(|(b, a)| a - b).sum::<f64>() / points.len() as f64;
     if s.tail {
