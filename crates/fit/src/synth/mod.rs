@@ -280,8 +280,8 @@ pub fn synthesize_watched(
                 // ([`finest_rotation`]). A cluster's neighbouring angles
                 // crowded the search over every angle: at 1,000 angles its
                 // 48 neighbours held a few clusters, ten or so angles each,
-                // and the k-d tree over a million entries took most of the
-                // search's time. Below two angles per sector (the presets'
+                // and the k-d tree over a million entries took the largest
+                // part of the search's time. Below two angles per sector (the presets'
                 // `fast` and `balanced`) every angle is searched, as before.
                 let coarse = grid.n_phi as usize;
                 let step = m_rot / coarse;
