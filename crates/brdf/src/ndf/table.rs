@@ -236,7 +236,8 @@ impl Coverage {
     }
 
     /// The coverage of `len` cells whose bits are `words` (cell `i` is bit
-    /// `i % 64` of word `i / 64`; bits past `len` are ignored).
+    /// `i % 64` of word `i / 64`; bits past `len` are ignored). `words`
+    /// must hold at least `len` bits.
     pub fn from_words(len: usize, words: &[u64]) -> Self {
         let mut bits = words[..len.div_ceil(64)].to_vec();
         if len % 64 != 0

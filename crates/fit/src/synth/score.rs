@@ -416,4 +416,32 @@ mod tests {
         assert!((direct.overlap - best.overlap).abs() < 1e-3 && (direct.gain - best.gain).abs() < 1e-3);
         assert!((direct.scale - best.scale).abs() < 1e-3 * direct.scale);
     }
+
+    #[test]
+    fn direct_sums_at_a_fractional_shift_are_those_of_the_turned_table() {
+        let grid = NdfGrid::new(16, 48).unwrap();
+        let q = partial(0.0, grid);
+        let mut set = brdf::ndf::TableSet::new(grid, 2);
+        set.set(1, &q);
+        let c = partial(-5.0 * grid.dphi(), grid);
+        // Across the ring's seam too: 47.5 sectors blends sectors 47 and 0
+        // (a candidate whose observed wedge lies ten sectors back, so that
+        // turned by about a whole ring it still adds to the query's).
+        let seam = c.rotated(-10.0 * grid.dphi());
+        for (c, shift) in [(&c, 5.25f32), (&c, 5.5), (&c, 3.0), (&seam, 44.5), (&seam, 47.5)] {
+            let turned = score_at(grid, &Flat::new(&q), &Flat::new(&c.rotated(shift * grid.dphi())), 0.0, 3, 0.3);
+            let direct = score_at(grid, &Flat::new(&q), &Flat::new(c), shift, 3, 0.3);
+            let (Some(t), Some(d)) = (turned, direct) else {
+                panic!("shift {shift}: {turned:?} against {direct:?}");
+            };
+            assert!((t.distance - d.distance).abs() < 1e-4, "shift {shift}: {t:?} against {d:?}");
+            assert!((t.overlap - d.overlap).abs() < 1e-5 && (t.gain - d.gain).abs() < 1e-5, "shift {shift}");
+            assert!((t.scale - d.scale).abs() < 1e-4 * d.scale, "shift {shift}");
+            // The query read from a table set (half-precision values) scores
+            // the same to the set's precision.
+            let from_set = score_at(grid, &Flat::query(&set, 1), &Flat::new(c), shift, 3, 0.3).unwrap();
+            assert!((from_set.distance - d.distance).abs() < 2e-3, "shift {shift}: {from_set:?}");
+            assert_eq!((from_set.overlap, from_set.gain), (d.overlap, d.gain), "shift {shift}");
+        }
+    }
 }
