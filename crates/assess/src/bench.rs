@@ -266,7 +266,11 @@ pub fn synthesis(
     println!("  partial tables: NDF error over the hemisphere {:.4}", ndf_error(&s, &maps.flags, &maps.tables));
     for &mode in modes {
         let t = Instant::now();
-        let out = synthesize(&maps.tables, &eligible, &SynthSettings { mode, clusters, rotations, neighbours, ..base.clone() });
+        let out = synthesize(
+            &maps.tables,
+            &eligible,
+            &SynthSettings { mode, clusters, rotations, neighbours, ..base.clone() },
+        );
         let dt = t.elapsed().as_secs_f64();
         println!(
             "  {mode:?}: {:.2} s ({:.0} points/s), {} candidates scored, {} pruned, NDF error {:.4}; peak memory {}",

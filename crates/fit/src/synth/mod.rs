@@ -320,7 +320,13 @@ pub fn synthesize_watched(
                                 r
                             } else {
                                 let query = &descriptors[qi * dlen..(qi + 1) * dlen];
-                                finest_rotation(&db[c * m_rot * dlen..(c + 1) * m_rot * dlen], dlen, query, r * m_rot / coarse, m_rot.div_ceil(coarse))
+                                finest_rotation(
+                                    &db[c * m_rot * dlen..(c + 1) * m_rot * dlen],
+                                    dlen,
+                                    query,
+                                    r * m_rot / coarse,
+                                    m_rot.div_ceil(coarse),
+                                )
                             };
                             let shift = r as f32 * np / m_rot as f32;
                             let (ov, gain) = coarse_overlap_gain(&qm, &rotate_mask(&masks[c], shift, grid.n_phi));
@@ -371,7 +377,8 @@ pub fn synthesize_watched(
     if s.tail {
         let t = Instant::now();
         let slopes = tail::Slopes::new(grid);
-        let filled: Vec<Option<NdfTable>> = points.par_iter().map(|&p| tail::fill_with(&tables.get(p), &slopes)).collect();
+        let filled: Vec<Option<NdfTable>> =
+            points.par_iter().map(|&p| tail::fill_with(&tables.get(p), &slopes)).collect();
         let mut tail_mass = 0.0;
         for (&p, f) in points.iter().zip(filled) {
             let Some(mut f) = f else { continue };
