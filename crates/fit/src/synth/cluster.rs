@@ -14,7 +14,8 @@ use rayon::prelude::*;
 /// measured; the loop also stops as soon as they do).
 const MAX_ITERATIONS: usize = 20;
 
-fn d2(a: &[f32], b: &[f32]) -> f32 {
+/// Squared Euclidean distance between two descriptors.
+pub(crate) fn d2(a: &[f32], b: &[f32]) -> f32 {
     a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum()
 }
 

@@ -405,7 +405,7 @@ fn finest_rotation(db: &[f32], dim: usize, query: &[f32], around: usize, reach: 
     let mut best = (around, f32::INFINITY);
     for k in 0..=2 * reach {
         let r = (around + rotations + k - reach) % rotations;
-        let d: f32 = db[r * dim..(r + 1) * dim].iter().zip(query).map(|(a, b)| (a - b) * (a - b)).sum();
+        let d = cluster::d2(&db[r * dim..(r + 1) * dim], query);
         if d < best.1 {
             best = (r, d);
         }
