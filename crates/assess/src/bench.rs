@@ -419,13 +419,15 @@ pub fn synthesis_scale(sample: &str, points: usize, clusters: u32, rotations: u3
     let out = synthesize(&set, &eligible, &SynthSettings { clusters, rotations, ..SynthSettings::default() });
     let dt = t.elapsed().as_secs_f64();
     println!(
-        "  accelerated synthesis: {dt:.1} s ({:.0} points/s; clustering {:.1} s, search {:.1} s, fill {:.1} s); completed {} of {}; peak memory {}",
+        "  accelerated synthesis: {dt:.1} s ({:.0} points/s; clustering {:.1} s, search {:.1} s, fill {:.1} s); completed {} of {}; {} candidates scored, {} pruned; peak memory {}",
         points as f64 / dt,
         out.stats.cluster_seconds,
         out.stats.search_seconds,
         out.stats.fill_seconds,
         out.stats.completed,
         out.stats.points,
+        out.stats.candidates_scored,
+        out.stats.pruned,
         mem()
     );
     Ok(())

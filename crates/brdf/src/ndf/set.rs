@@ -46,10 +46,7 @@ impl TableSet {
     /// Table `k` as an [`NdfTable`].
     pub fn get(&self, k: usize) -> NdfTable {
         let cells = self.grid.len();
-        let values: Vec<f32> = self.values[k * cells..(k + 1) * cells].iter().map(|v| v.to_f32().max(0.0)).collect();
-        let cov = Coverage::from_words(cells, self.coverage_words(k));
-        // Lengths match by construction and values are finite and >= 0.
-        NdfTable::from_values(self.grid, values, cov).unwrap_or_else(|_| NdfTable::zeros(self.grid))
+        read(self.grid, &self.values[k * cells..(k + 1) * cells], self.coverage_words(k))
     }
 
     /// Values of table `k` as f32, into `out`.
@@ -68,13 +65,18 @@ impl TableSet {
 
     /// Store table `k`.
     pub fn set(&mut self, k: usize, t: &NdfTable) {
-        assert_eq!(t.grid(), self.grid, "table grid differs from the set's");
-        let cells = self.grid.len();
-        for (d, s) in self.values[k * cells..(k + 1) * cells].iter_mut().zip(t.values()) {
-            *d = f16::from_f32(*s);
-        }
-        let w = self.words();
-        self.coverage[k * w..(k + 1) * w].copy_from_slice(t.coverage().words());
+        let (cells, w) = (self.grid.len(), self.words());
+        write(self.grid, &mut self.values[k * cells..(k + 1) * cells], &mut self.coverage[k * w..(k + 1) * w], t);
+    }
+
+    /// Every table in order, each to read and replace on its own: tables
+    /// that change independently can change in parallel, in place.
+    pub fn slots(&mut self) -> impl Iterator<Item = TableSlot<'_>> {
+        let (grid, cells, w) = (self.grid, self.grid.len(), self.words());
+        self.values
+            .chunks_exact_mut(cells)
+            .zip(self.coverage.chunks_exact_mut(w))
+            .map(move |(values, coverage)| TableSlot { grid, values, coverage })
     }
 
     /// Raw storage (for writing to disk).
@@ -92,4 +94,39 @@ impl TableSet {
             coverage,
         })
     }
+}
+
+/// One table of a [`TableSet`] ([`TableSet::slots`]).
+#[derive(Debug)]
+pub struct TableSlot<'a> {
+    grid: NdfGrid,
+    values: &'a mut [f16],
+    coverage: &'a mut [u64],
+}
+
+impl TableSlot<'_> {
+    /// The table, as [`TableSet::get`] reads it.
+    pub fn get(&self) -> NdfTable {
+        read(self.grid, self.values, self.coverage)
+    }
+
+    /// Replace the table, as [`TableSet::set`] does.
+    pub fn set(&mut self, t: &NdfTable) {
+        write(self.grid, self.values, self.coverage, t);
+    }
+}
+
+fn read(grid: NdfGrid, values: &[f16], words: &[u64]) -> NdfTable {
+    let values: Vec<f32> = values.iter().map(|v| v.to_f32().max(0.0)).collect();
+    let cov = Coverage::from_words(grid.len(), words);
+    // Lengths match by construction and values are finite and >= 0.
+    NdfTable::from_values(grid, values, cov).unwrap_or_else(|_| NdfTable::zeros(grid))
+}
+
+fn write(grid: NdfGrid, values: &mut [f16], words: &mut [u64], t: &NdfTable) {
+    assert_eq!(t.grid(), grid, "table grid differs from the set's");
+    for (d, s) in values.iter_mut().zip(t.values()) {
+        *d = f16::from_f32(*s);
+    }
+    words.copy_from_slice(t.coverage().words());
 }

@@ -164,6 +164,12 @@ impl NdfGrid {
         0.5 * self.dphi() * (s1 * s1 - s0 * s0)
     }
 
+    /// [`NdfGrid::cos_measure`] of every ring, for loops that would
+    /// otherwise find it (two sines) once per cell or per call.
+    pub fn cos_measures(&self) -> Vec<f32> {
+        (0..self.n_theta as usize).map(|t| self.cos_measure(t)).collect()
+    }
+
     /// Solid angle of one cell of ring `t`.
     pub fn solid_angle(&self, t: usize) -> f32 {
         self.dphi() * (self.theta_edge(t).cos() - self.theta_edge(t + 1).cos())

@@ -32,6 +32,11 @@ pub struct Core {
     pub rings: usize,
     pub bands: usize,
     pub sectors: usize,
+    /// Cosine measure of each core ring.
+    measures: Vec<f32>,
+    /// Each descriptor entry's summed cosine measure (the same for every
+    /// table and rotation).
+    weights: Vec<f32>,
 }
 
 impl Core {
@@ -59,43 +64,57 @@ impl Core {
         let rings = full_rings.get(full_rings.len() / 20).copied().unwrap_or(0).max(2).min(nt);
         let bands = if length >= 32 { 2 } else { 1 }.min(rings);
         let sectors = (length / bands).clamp(4, np);
-        Self { grid: g, rings, bands, sectors }
+        let measures: Vec<f32> = (0..rings).map(|t| g.cos_measure(t)).collect();
+        let mut weights = vec![0.0f32; bands * sectors];
+        for (t, &w) in measures.iter().enumerate() {
+            let band = t * bands / rings;
+            for p in 0..np {
+                weights[band * sectors + p * sectors / np] += w;
+            }
+        }
+        Self { grid: g, rings, bands, sectors, measures, weights }
+    }
+
+    /// The unrotated descriptors of `points`' tables, row-major.
+    pub fn describe_all(&self, tables: &TableSet, points: &[usize]) -> Vec<f32> {
+        let dlen = self.len();
+        let (values, _) = tables.raw();
+        let cells = self.grid.len();
+        let mut out = vec![0.0f32; points.len() * dlen];
+        out.par_chunks_mut(dlen.max(1)).zip(points.par_iter()).for_each(|(d, &p)| {
+            // As `TableSet::get` reads them: negative values (and NaN) are
+            // 0, and a table holding an infinite value is all 0.
+            let table = &values[p * cells..(p + 1) * cells];
+            if !table.iter().any(|v| v.is_infinite()) {
+                self.describe_with(|c| table[c].to_f32().max(0.0), 0.0, d);
+            }
+        });
+        out
     }
 
     /// Descriptor of `t` rotated by `shift` sectors (fractional shifts
     /// interpolate linearly), unit length (zero if the core is empty).
-    /// The unrotated descriptors of `points`' tables, row-major.
-    pub fn describe_all(&self, tables: &TableSet, points: &[usize]) -> Vec<f32> {
-        let dlen = self.len();
-        points
-            .par_iter()
-            .flat_map_iter(|&p| {
-                let mut d = vec![0.0f32; dlen];
-                self.describe(&tables.get(p), 0.0, &mut d);
-                d
-            })
-            .collect()
+    pub fn describe(&self, t: &NdfTable, shift: f32, out: &mut [f32]) {
+        let values = t.values();
+        self.describe_with(|c| values[c], shift, out);
     }
 
-    pub fn describe(&self, t: &NdfTable, shift: f32, out: &mut [f32]) {
-        let (np, g) = (self.grid.n_phi as usize, &self.grid);
+    /// [`Core::describe`] of the table whose value at cell `c` is `value(c)`.
+    fn describe_with(&self, value: impl Fn(usize) -> f32, shift: f32, out: &mut [f32]) {
+        let np = self.grid.n_phi as usize;
         out.iter_mut().for_each(|v| *v = 0.0);
-        let mut weights = vec![0.0f32; self.len()];
         let (s0, f) = brdf::ndf::split_shift(shift, np);
-        for t_ in 0..self.rings {
+        for (t_, &w) in self.measures.iter().enumerate() {
             let band = t_ * self.bands / self.rings;
-            let w = g.cos_measure(t_);
             for (p, (a, b)) in brdf::ndf::rotation_sources(np, s0).enumerate() {
                 // Rotated value at p: source sectors p - s0 and p - s0 - 1.
-                let (a, b) = (t.at(t_, a), t.at(t_, b));
+                let (a, b) = (value(t_ * np + a), value(t_ * np + b));
                 let v = a * (1.0 - f) + b * f;
-                let k = band * self.sectors + p * self.sectors / np;
-                out[k] += w * v;
-                weights[k] += w;
+                out[band * self.sectors + p * self.sectors / np] += w * v;
             }
         }
         let mut norm = 0.0f32;
-        for (o, w) in out.iter_mut().zip(&weights) {
+        for (o, w) in out.iter_mut().zip(&self.weights) {
             if *w > 0.0 {
                 *o /= w;
             }

@@ -41,7 +41,7 @@ pub mod tail;
 use std::num::NonZero;
 use std::time::Instant;
 
-use brdf::ndf::{NdfTable, TableSet};
+use brdf::ndf::{NdfTable, TableSet, TableSlot};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -136,12 +136,13 @@ pub struct SynthOutput {
 
 /// The share of the hemisphere's cosine measure that table `p` of `set`
 /// observed.
-fn coverage_measure(set: &TableSet, p: usize) -> f64 {
-    let g = set.grid();
+/// `measures` holds the grid's [`brdf::ndf::NdfGrid::cos_measures`].
+fn coverage_measure(set: &TableSet, p: usize, measures: &[f32]) -> f64 {
+    let np = set.grid().n_phi as usize;
     let words = set.coverage_words(p);
-    (0..g.len())
+    (0..set.grid().len())
         .filter(|&c| (words[c / 64] >> (c % 64)) & 1 == 1)
-        .map(|c| g.cos_measure(c / g.n_phi as usize) as f64)
+        .map(|c| measures[c / np] as f64)
         .sum::<f64>()
         / std::f64::consts::PI
 }
@@ -213,7 +214,8 @@ pub fn synthesize_watched(
         return SynthOutput { tables, mass_factor: mass, stats };
     }
     let plans = Plans::new(grid, s.rotations as usize);
-    let before: Vec<f64> = points.par_iter().map(|&p| coverage_measure(input, p)).collect();
+    let measures = grid.cos_measures();
+    let before: Vec<f64> = points.par_iter().map(|&p| coverage_measure(input, p, &measures)).collect();
     let blend = s.blend.max(1) as usize;
     for _pass in 0..s.passes.max(1) {
         // Candidates: other points, or cluster means.
@@ -264,15 +266,11 @@ pub fn synthesize_watched(
                 let masks: Vec<CoarseMask> =
                     candidates.iter().map(|t| coarse_mask(grid, t.coverage().words())).collect();
                 // Descriptor database: every cluster at every rotation.
-                let db: Vec<f32> = (0..candidates.len() * m_rot)
-                    .into_par_iter()
-                    .flat_map_iter(|e| {
-                        let (c, r) = (e / m_rot, e % m_rot);
-                        let mut d = vec![0.0f32; dlen];
-                        core.describe(&candidates[c], r as f32 * np / m_rot as f32, &mut d);
-                        d
-                    })
-                    .collect();
+                let mut db = vec![0.0f32; candidates.len() * m_rot * dlen];
+                db.par_chunks_mut(dlen.max(1)).enumerate().for_each(|(e, d)| {
+                    let (c, r) = (e / m_rot, e % m_rot);
+                    core.describe(&candidates[c], r as f32 * np / m_rot as f32, d);
+                });
                 // With two or more angles per sector, the nearest-neighbour
                 // search runs over each cluster at whole sectors only
                 // (`coarse`), and each cluster it finds is then turned to its
@@ -335,7 +333,7 @@ pub fn synthesize_watched(
                                 continue;
                             }
                             scored.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                            if let Some(m) = score_at(grid, &qf, &flats[c], shift, c, s.min_overlap) {
+                            if let Some(m) = score_at(&measures, &qf, &flats[c], shift, c, s.min_overlap) {
                                 found.push(m);
                             }
                         }
@@ -349,51 +347,57 @@ pub fn synthesize_watched(
         stats.pruned += pruned.into_inner();
         stats.search_seconds += t1.elapsed().as_secs_f64();
         let t2 = Instant::now();
-        let completed: Vec<Option<NdfTable>> = points
-            .par_iter()
-            .zip(matches.par_iter())
-            .map(|(&p, ms)| {
+        slots_of(&mut tables, &mut mass, &points).into_par_iter().zip(matches.par_iter()).for_each(
+            |((mut slot, mass), ms)| {
                 if ms.is_empty() {
-                    return None;
+                    return;
                 }
                 let with: Vec<(Match, &NdfTable)> = ms.iter().map(|m| (*m, &candidates[m.candidate])).collect();
-                fill::complete(&tables.get(p), &with)
-            })
-            .collect();
-        for (&p, c) in points.iter().zip(completed) {
-            if let Some(mut t) = c {
-                let k = t.normalize();
-                if k > 0.0 {
-                    mass[p] *= k;
-                    tables.set(p, &t);
+                if let Some(mut t) = fill::complete(&slot.get(), &with) {
+                    let k = t.normalize();
+                    if k > 0.0 {
+                        *mass *= k;
+                        slot.set(&t);
+                    }
                 }
-            }
-        }
+            },
+        );
         stats.fill_seconds += t2.elapsed().as_secs_f64();
     }
-    let after: Vec<f64> = points.par_iter().map(|&p| coverage_measure(&tables, p)).collect();
+    let after: Vec<f64> = points.par_iter().map(|&p| coverage_measure(&tables, p, &measures)).collect();
     stats.completed = before.iter().zip(&after).filter(|(b, a)| a > b).count();
     stats.mean_added_coverage = before.iter().zip(&after).map(|(b, a)| a - b).sum::<f64>() / points.len() as f64;
     if s.tail {
         let t = Instant::now();
         let slopes = tail::Slopes::new(grid);
-        let filled: Vec<Option<NdfTable>> =
-            points.par_iter().map(|&p| tail::fill_with(&tables.get(p), &slopes)).collect();
+        let factors: Vec<Option<f32>> = slots_of(&mut tables, &mut mass, &points)
+            .into_par_iter()
+            .map(|(mut slot, mass)| {
+                let mut f = tail::fill_with(&slot.get(), &slopes)?;
+                let k = f.normalize();
+                (k > 0.0).then(|| {
+                    *mass *= k;
+                    slot.set(&f);
+                    k
+                })
+            })
+            .collect();
         let mut tail_mass = 0.0;
-        for (&p, f) in points.iter().zip(filled) {
-            let Some(mut f) = f else { continue };
-            let k = f.normalize();
-            if k > 0.0 {
-                mass[p] *= k;
-                tables.set(p, &f);
-                tail_mass += f64::from(1.0 - 1.0 / k);
-                stats.tail_filled += 1;
-            }
+        for k in factors.into_iter().flatten() {
+            tail_mass += f64::from(1.0 - 1.0 / k);
+            stats.tail_filled += 1;
         }
         stats.mean_tail_mass = if stats.tail_filled > 0 { tail_mass / stats.tail_filled as f64 } else { 0.0 };
         stats.fill_seconds += t.elapsed().as_secs_f64();
     }
     SynthOutput { tables, mass_factor: mass, stats }
+}
+
+/// The tables of `points` (ascending, as `synthesize` takes them) in
+/// `tables`, each with its entry of `mass`, to change in parallel.
+fn slots_of<'a>(tables: &'a mut TableSet, mass: &'a mut [f32], points: &[usize]) -> Vec<(TableSlot<'a>, &'a mut f32)> {
+    let mut next = points.iter().peekable();
+    tables.slots().zip(mass.iter_mut()).enumerate().filter_map(|(p, slot)| next.next_if_eq(&&p).map(|_| slot)).collect()
 }
 
 /// Of one cluster's descriptors at `rotations` angles (`db`, row-major,

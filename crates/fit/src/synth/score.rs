@@ -287,37 +287,90 @@ impl Flat {
 }
 
 /// Lanes of [`score_at`]'s sums: each ring is summed in this many partial
-/// sums, sector `p` into lane `p % LANES`, which the compiler keeps in
-/// vector registers.
+/// sums, sector `p` into lane `p % LANES`. Written a whole set of lanes at
+/// a time, with the blend fixed per call, they compile to vector
+/// arithmetic (eight to a register where the processor has AVX); each
+/// lane's sum is the same sequence of scalar operations it would be one
+/// cell at a time.
 const LANES: usize = 8;
 
 /// One ring's sums over the overlap (see the module's notes): `A`, `B`,
 /// `C`, `N` and `G` before the ring's weight. `a0` and `m0` are the
 /// candidate turned by the whole sectors of the shift, `a1` and `m1` by one
 /// more; `f` blends them, and a blended cell counts as observed only if
-/// both were (`blend`).
-fn ring_sums(qv: &[f32], qm: &[f32], a0: (&[f32], &[f32]), a1: (&[f32], &[f32]), f: f32, blend: bool) -> [f32; 5] {
+/// both were (`BLEND`; without it `f` is 0 and `a1` is not read).
+fn ring_sums<const BLEND: bool>(
+    qv: &[f32],
+    qm: &[f32],
+    a0: (&[f32], &[f32]),
+    a1: (&[f32], &[f32]),
+    f: f32,
+) -> [f32; 5] {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx") {
+        // SAFETY: the processor has AVX, checked just above.
+        return unsafe { ring_sums_avx::<BLEND>(qv, qm, a0, a1, f) };
+    }
+    ring_sums_lanes::<BLEND>(qv, qm, a0, a1, f)
+}
+
+/// [`ring_sums`] compiled for AVX: eight lanes to a register, and no fused
+/// multiply-add, so the same sums to the last bit.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx")]
+fn ring_sums_avx<const BLEND: bool>(
+    qv: &[f32],
+    qm: &[f32],
+    a0: (&[f32], &[f32]),
+    a1: (&[f32], &[f32]),
+    f: f32,
+) -> [f32; 5] {
+    ring_sums_lanes::<BLEND>(qv, qm, a0, a1, f)
+}
+
+#[inline(always)]
+fn ring_sums_lanes<const BLEND: bool>(
+    qv: &[f32],
+    qm: &[f32],
+    a0: (&[f32], &[f32]),
+    a1: (&[f32], &[f32]),
+    f: f32,
+) -> [f32; 5] {
+    type V = [f32; LANES];
+    #[inline(always)]
+    fn at(x: &[f32], k: usize) -> V {
+        x[k..k + LANES].try_into().expect("LANES values")
+    }
+    #[inline(always)]
+    fn zip(a: V, b: V, op: impl Fn(f32, f32) -> f32) -> V {
+        std::array::from_fn(|l| op(a[l], b[l]))
+    }
+    #[inline(always)]
+    fn cell<const BLEND: bool>(acc: &mut [V; 5], (dp, mp): (V, V), (v0, m0): (V, V), (v1, m1): (V, V), f: f32) {
+        let mq = if BLEND { zip(m0, m1, |a, b| a * b) } else { m0 };
+        let dq = if BLEND { zip(v0, v1, |a, b| a * (1.0 - f) + b * f) } else { v0 };
+        let m = zip(mp, mq, |a, b| a * b);
+        let x = zip(m, dp, |a, b| a * b);
+        acc[0] = zip(acc[0], zip(x, dq, |a, b| a * b), |a, b| a + b);
+        acc[1] = zip(acc[1], zip(x, dp, |a, b| a * b), |a, b| a + b);
+        acc[2] = zip(acc[2], zip(zip(m, dq, |a, b| a * b), dq, |a, b| a * b), |a, b| a + b);
+        acc[3] = zip(acc[3], m, |a, b| a + b);
+        acc[4] = zip(acc[4], zip(mp, mq, |a, b| (1.0 - a) * b), |a, b| a + b);
+    }
     let mut acc = [[0.0f32; LANES]; 5];
     let n = qv.len() - qv.len() % LANES;
-    let cell = |acc: &mut [[f32; LANES]; 5], l: usize, i: usize| {
-        let mq = if blend { a0.1[i] * a1.1[i] } else { a0.1[i] };
-        let dq = a0.0[i] * (1.0 - f) + a1.0[i] * f;
-        let (mp, dp) = (qm[i], qv[i]);
-        let m = mp * mq;
-        let x = m * dp;
-        acc[0][l] += x * dq;
-        acc[1][l] += x * dp;
-        acc[2][l] += m * dq * dq;
-        acc[3][l] += m;
-        acc[4][l] += (1.0 - mp) * mq;
-    };
-    for base in (0..n).step_by(LANES) {
-        for l in 0..LANES {
-            cell(&mut acc, l, base + l);
-        }
+    for k in (0..n).step_by(LANES) {
+        cell::<BLEND>(&mut acc, (at(qv, k), at(qm, k)), (at(a0.0, k), at(a0.1, k)), (at(a1.0, k), at(a1.1, k)), f);
     }
+    // A ring not a multiple of LANES long: the rest one cell at a time,
+    // into lane 0.
     for i in n..qv.len() {
-        cell(&mut acc, 0, i);
+        let one = |x: &[f32]| std::array::from_fn(|l| if l == 0 { x[i] } else { 0.0 });
+        let mut part = [[0.0f32; LANES]; 5];
+        cell::<BLEND>(&mut part, (one(qv), one(qm)), (one(a0.0), one(a0.1)), (one(a1.0), one(a1.1)), f);
+        for (a, p) in acc.iter_mut().zip(&part) {
+            a[0] += p[0];
+        }
     }
     acc.map(|lanes| lanes.iter().sum())
 }
@@ -328,20 +381,21 @@ fn ring_sums(qv: &[f32], qm: &[f32], a0: (&[f32], &[f32]), a1: (&[f32], &[f32]),
 /// rotated cell counts as observed only if both sources were. A ring the
 /// candidate did not observe adds nothing but the query's own measure, so
 /// it is skipped.
+/// `measures` holds the grid's [`NdfGrid::cos_measures`], one per ring.
 pub fn score_at(
-    grid: brdf::ndf::NdfGrid,
+    measures: &[f32],
     query: &Flat,
     candidate: &Flat,
     shift: f32,
     index: usize,
     min_overlap: f32,
 ) -> Option<Match> {
-    let np = grid.n_phi as usize;
+    let np = query.n_phi;
     let (s0, f) = brdf::ndf::split_shift(shift, np);
     let s1 = if s0 + 1 == np { 0 } else { s0 + 1 };
     let (mut a, mut b, mut c, mut n, mut gain, mut observed, mut missing) = (0.0f64, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
-    for t in 0..grid.n_theta as usize {
-        let w = grid.cos_measure(t) as f64;
+    for (t, &w) in measures.iter().enumerate() {
+        let w = w as f64;
         let ro = query.ring_observed[t];
         observed += w * ro as f64;
         missing += w * (np as f32 - ro) as f64;
@@ -349,7 +403,9 @@ pub fn score_at(
             continue;
         }
         let (qv, qm) = query.ring(t);
-        let [ra, rb, rc, rn, rg] = ring_sums(qv, qm, candidate.turned(t, s0), candidate.turned(t, s1), f, f != 0.0);
+        let (a0, a1) = (candidate.turned(t, s0), candidate.turned(t, s1));
+        let [ra, rb, rc, rn, rg] =
+            if f != 0.0 { ring_sums::<true>(qv, qm, a0, a1, f) } else { ring_sums::<false>(qv, qm, a0, a1, f) };
         a += w * ra as f64;
         b += w * rb as f64;
         c += w * rc as f64;
@@ -411,7 +467,7 @@ mod tests {
         let best = best_rotation(&plans, &qs, &cs, 7, 0.3, &mut ScoreScratch::default()).unwrap();
         assert!((best.shift - 5.0).abs() < 1e-3, "{best:?}");
         assert!(best.distance < 1e-3, "{best:?}");
-        let direct = score_at(grid, &Flat::new(&q), &Flat::new(&c), best.shift, 7, 0.3).unwrap();
+        let direct = score_at(&grid.cos_measures(), &Flat::new(&q), &Flat::new(&c), best.shift, 7, 0.3).unwrap();
         assert!((direct.distance - best.distance).abs() < 1e-3);
         assert!((direct.overlap - best.overlap).abs() < 1e-3 && (direct.gain - best.gain).abs() < 1e-3);
         assert!((direct.scale - best.scale).abs() < 1e-3 * direct.scale);
@@ -429,8 +485,15 @@ mod tests {
         // turned by about a whole ring it still adds to the query's).
         let seam = c.rotated(-10.0 * grid.dphi());
         for (c, shift) in [(&c, 5.25f32), (&c, 5.5), (&c, 3.0), (&seam, 44.5), (&seam, 47.5)] {
-            let turned = score_at(grid, &Flat::new(&q), &Flat::new(&c.rotated(shift * grid.dphi())), 0.0, 3, 0.3);
-            let direct = score_at(grid, &Flat::new(&q), &Flat::new(c), shift, 3, 0.3);
+            let turned = score_at(
+                &grid.cos_measures(),
+                &Flat::new(&q),
+                &Flat::new(&c.rotated(shift * grid.dphi())),
+                0.0,
+                3,
+                0.3,
+            );
+            let direct = score_at(&grid.cos_measures(), &Flat::new(&q), &Flat::new(c), shift, 3, 0.3);
             let (Some(t), Some(d)) = (turned, direct) else {
                 panic!("shift {shift}: {turned:?} against {direct:?}");
             };
@@ -439,9 +502,65 @@ mod tests {
             assert!((t.scale - d.scale).abs() < 1e-4 * d.scale, "shift {shift}");
             // The query read from a table set (half-precision values) scores
             // the same to the set's precision.
-            let from_set = score_at(grid, &Flat::query(&set, 1), &Flat::new(c), shift, 3, 0.3).unwrap();
+            let from_set = score_at(&grid.cos_measures(), &Flat::query(&set, 1), &Flat::new(c), shift, 3, 0.3).unwrap();
             assert!((from_set.distance - d.distance).abs() < 2e-3, "shift {shift}: {from_set:?}");
             assert_eq!((from_set.overlap, from_set.gain), (d.overlap, d.gain), "shift {shift}");
+        }
+    }
+
+    /// The sums of the module's notes written one cell at a time, sector
+    /// `p` into partial sum `p % LANES`, to hold [`ring_sums`] to.
+    fn ring_sums_by_cell(
+        qv: &[f32],
+        qm: &[f32],
+        a0: (&[f32], &[f32]),
+        a1: (&[f32], &[f32]),
+        f: f32,
+        blend: bool,
+    ) -> [f32; 5] {
+        let mut acc = [[0.0f32; LANES]; 5];
+        for i in 0..qv.len() {
+            let l = if i < qv.len() - qv.len() % LANES { i % LANES } else { 0 };
+            let mq = if blend { a0.1[i] * a1.1[i] } else { a0.1[i] };
+            let dq = a0.0[i] * (1.0 - f) + a1.0[i] * f;
+            let m = qm[i] * mq;
+            let x = m * qv[i];
+            acc[0][l] += x * dq;
+            acc[1][l] += x * qv[i];
+            acc[2][l] += m * dq * dq;
+            acc[3][l] += m;
+            acc[4][l] += (1.0 - qm[i]) * mq;
+        }
+        acc.map(|lanes| lanes.iter().sum())
+    }
+
+    #[test]
+    fn ring_sums_are_the_cell_by_cell_sums_to_the_last_bit() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(7);
+        // 96 sectors (the default grid's) and a ring with a remainder.
+        for n in [96usize, 50] {
+            for _ in 0..200 {
+                let mut ring = |p: f64| -> (Vec<f32>, Vec<f32>) {
+                    let m: Vec<f32> = (0..n).map(|_| if rng.random_bool(p) { 1.0 } else { 0.0 }).collect();
+                    let v = m.iter().map(|&m| m * rng.random_range(0.0f32..40.0)).collect();
+                    (v, m)
+                };
+                let (q, c0, c1) = (ring(0.6), ring(0.7), ring(0.7));
+                let f = rng.random_range(0.0f32..1.0);
+                let a0 = (&c0.0[..], &c0.1[..]);
+                let a1 = (&c1.0[..], &c1.1[..]);
+                let blended = ring_sums::<true>(&q.0, &q.1, a0, a1, f);
+                assert_eq!(blended.map(f32::to_bits), ring_sums_by_cell(&q.0, &q.1, a0, a1, f, true).map(f32::to_bits));
+                let whole = ring_sums::<false>(&q.0, &q.1, a0, a1, 0.0);
+                assert_eq!(
+                    whole.map(f32::to_bits),
+                    ring_sums_by_cell(&q.0, &q.1, a0, a1, 0.0, false).map(f32::to_bits)
+                );
+                // The portable lanes, as on a processor without AVX.
+                let portable = ring_sums_lanes::<true>(&q.0, &q.1, a0, a1, f);
+                assert_eq!(portable.map(f32::to_bits), blended.map(f32::to_bits));
+            }
         }
     }
 }

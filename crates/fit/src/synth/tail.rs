@@ -60,6 +60,8 @@ pub fn fill(table: &NdfTable) -> Option<NdfTable> {
 pub struct Slopes {
     grid: brdf::ndf::NdfGrid,
     cells: Vec<Option<(f64, f64, f64)>>,
+    /// The grid's cosine measure per ring.
+    measures: Vec<f32>,
 }
 
 impl Slopes {
@@ -72,7 +74,7 @@ impl Slopes {
                 (z > 1e-3).then(|| (z * z * z * z, h.x as f64 / z, h.y as f64 / z))
             })
             .collect();
-        Self { grid: g, cells }
+        Self { grid: g, cells, measures: g.cos_measures() }
     }
 }
 
@@ -88,18 +90,28 @@ pub fn fill_with(table: &NdfTable, slopes: &Slopes) -> Option<NdfTable> {
     if cov.count() == g.len() {
         return None;
     }
+    let measures = &slopes.measures;
     let slopes = &slopes.cells;
     let values = table.values();
-    let (top, peak) = cov.iter_set().map(|c| (c, values[c])).fold((0, 0.0f32), |a, b| if b.1 > a.1 { b } else { a });
+    let (mut top, mut peak) = (0, 0.0f32);
+    for c in cov.iter_set() {
+        if values[c] > peak {
+            (top, peak) = (c, values[c]);
+        }
+    }
     if !(peak > 0.0) || !peak.is_finite() {
         return None;
     }
+    // The four neighbours around the ring and across it; a cell on the
+    // first or last ring stands in for the one it lacks (each use below
+    // finds nothing at the cell itself).
     let neighbours = |c: usize| {
         let (t, p) = (c / np, c % np);
-        [(t > 0).then(|| c - np), (t + 1 < nt).then(|| c + np)]
-            .into_iter()
-            .flatten()
-            .chain([t * np + (p + 1) % np, t * np + (p + np - 1) % np])
+        let up = if t > 0 { c - np } else { c };
+        let down = if t + 1 < nt { c + np } else { c };
+        let right = if p + 1 == np { c + 1 - np } else { c + 1 };
+        let left = if p == 0 { c + np - 1 } else { c - 1 };
+        [up, down, right, left]
     };
     // The body: the covered cells of at least MIN_RELATIVE of the peak
     // joined to it. A stray noisy cell far out, where a lobe's logarithm is
@@ -118,7 +130,7 @@ pub fn fill_with(table: &NdfTable, slopes: &Slopes) -> Option<NdfTable> {
     let (mut a, mut b, mut n) = (Matrix6::<f64>::zeros(), Vector6::<f64>::zeros(), 0usize);
     for c in (0..g.len()).filter(|&c| body[c]) {
         let (v, Some((c4, x, y))) = (values[c], slopes[c]) else { continue };
-        let w = (v * g.cos_measure(c / np)) as f64;
+        let w = (v * measures[c / np]) as f64;
         let f = features(x, y);
         a += w * f * f.transpose();
         b += w * (v as f64 * c4).ln() * f;
@@ -136,8 +148,8 @@ pub fn fill_with(table: &NdfTable, slopes: &Slopes) -> Option<NdfTable> {
     // Where the table meets its empty cells, the lobe must agree with it.
     let empty = |c: usize| !cov.get(c) && slopes[c].is_some();
     let (mut sab, mut sbb) = (0.0f64, 0.0f64);
-    for c in cov.iter_set().filter(|&c| neighbours(c).any(empty)) {
-        let (l, w) = (lobe(c), g.cos_measure(c / np) as f64);
+    for c in cov.iter_set().filter(|&c| neighbours(c).into_iter().any(empty)) {
+        let (l, w) = (lobe(c), measures[c / np] as f64);
         sab += w * l * values[c] as f64;
         sbb += w * l * l;
     }
