@@ -205,8 +205,9 @@ pub fn fit(sample: &str, side: u32, steps: u32, led_stride: u32, ndf_theta: u32,
     if let Some(st) = &r.synth {
         let dt = r.timings.synthesis_s;
         println!(
-            "  synthesis (accelerated, {clusters} clusters) and the refit with the completed NDFs: {:.1} s, {:.0} points/s; completed {} of {}",
+            "  synthesis (accelerated, {clusters} clusters) and the refit with the completed NDFs: {:.1} s (refit {:.1} s), {:.0} points/s; completed {} of {}",
             dt,
+            r.timings.refit_s,
             n as f64 / dt,
             st.completed,
             st.points,

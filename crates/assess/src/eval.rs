@@ -247,7 +247,7 @@ fn unobserved_fraction(m: &Material, c: &Condition, sample: &SampleArea) -> f64 
             let words = partial.coverage_words(pi);
             let cell = grid.index(t, s);
             n += 1;
-            if (words[cell / 64] >> (cell % 64)) & 1 == 0 {
+            if !brdf::ndf::bit(words, cell) {
                 out += 1;
             }
         }

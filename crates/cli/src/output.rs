@@ -113,6 +113,7 @@ pub async fn finish_fit(
         report.time("fit_drift_s", out.timings.drift_s);
         report.time("fit_points_s", out.timings.points_s);
         report.time("fit_synthesis_s", out.timings.synthesis_s);
+        report.time("fit_synthesis_refit_s", out.timings.refit_s);
         report.time("fit_pool_s", out.timings.pool_s);
         report.time("fit_analytic_s", out.timings.analytic_s);
         report.time("fit_selection_s", out.timings.selection_s);

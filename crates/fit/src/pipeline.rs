@@ -70,7 +70,10 @@ pub struct Timings {
     pub drift_s: f64,
     /// Pooling the points of each material (`crate::pooled`).
     pub pool_s: f64,
+    /// Synthesis and the refit of the points it completed.
     pub synthesis_s: f64,
+    /// Of `synthesis_s`, the refit of the completed points.
+    pub refit_s: f64,
     pub analytic_s: f64,
     pub selection_s: f64,
 }
@@ -412,8 +415,9 @@ fn fit_stages(
     let (partial, synth) = match &stages.synth {
         Some(ss) => {
             let t = Instant::now();
-            let (partial, stats) = synthesis_stage(ctx, store, &mut maps, ss, settings, &op);
+            let (partial, stats, refit_s) = synthesis_stage(ctx, store, &mut maps, ss, settings, &op);
             timings.synthesis_s = t.elapsed().as_secs_f64();
+            timings.refit_s = refit_s;
             (Some(partial), Some(stats))
         }
         None => (None, None),
@@ -511,7 +515,8 @@ fn choice_scores(
 
 /// Synthesis: complete every point's partial table from other points'
 /// rotated tables, then refit the points that gained cells with their
-/// completed table. Returns the maps as they were before.
+/// completed table. Returns the maps as they were before, the synthesis's
+/// statistics and the refit's wall time (seconds).
 pub fn synthesis_stage(
     ctx: &FitContext,
     store: &SampleStore,
@@ -519,13 +524,14 @@ pub fn synthesis_stage(
     synth: &SynthSettings,
     settings: &FitSettings,
     op: &MaskingOperator,
-) -> (PartialMaps, SynthStats) {
+) -> (PartialMaps, SynthStats, f64) {
     let eligible: Vec<bool> = maps.flags.iter().map(|f| f & point_flag::NO_SPECULAR == 0).collect();
     let out = crate::synth::synthesize_watched(&maps.tables, &eligible, synth, &ctx.progress);
     let partial = PartialMaps { tables: maps.tables.clone(), ks: maps.ks.clone(), eta: maps.eta.clone() };
     let added: Vec<bool> = out.mass_factor.iter().map(|&k| k != 1.0).collect();
+    let t = Instant::now();
     crate::points::refit_completed(ctx, store, maps, &out.tables, &added, settings, op);
-    (partial, out.stats)
+    (partial, out.stats, t.elapsed().as_secs_f64())
 }
 
 /// What [`analytic_stage`] produced.

@@ -152,8 +152,8 @@ fn write_tables(path: &Path, t: &TableSet) -> Result<(), MaterialError> {
     let mut observed = Vec::with_capacity(values.len());
     for k in 0..t.len() {
         for c in 0..cells {
-            let bit = (coverage[k * words + c / 64] >> (c % 64)) & 1;
-            observed.push(f16::from_f32(bit as f32));
+            let on = brdf::ndf::bit(&coverage[k * words..(k + 1) * words], c);
+            observed.push(f16::from_f32(if on { 1.0 } else { 0.0 }));
         }
     }
     write_channels(

@@ -31,7 +31,7 @@ pub use mixture::Mixture;
 pub use power_cosine::PowerCosine;
 pub use set::{TableSet, TableSlot};
 pub use sheen::Sheen;
-pub use table::{Bilinear, Coverage, NdfGrid, NdfTable, TableError, rotation_sources, split_shift, wrap};
+pub use table::{Bilinear, Coverage, NdfGrid, NdfTable, TableError, bit, rotation_sources, split_shift, wrap};
 pub use tabulated::TabulatedNdf;
 
 use glam::{Vec2, Vec3};

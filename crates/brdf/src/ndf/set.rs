@@ -4,6 +4,7 @@
 //! scale (640,000 points x 3,072 cells) this is 3.9 GB instead of 7.9 GB.
 
 use half::f16;
+use half::slice::HalfFloatSliceExt;
 use serde::{Deserialize, Serialize};
 
 use super::{Coverage, NdfGrid, NdfTable};
@@ -49,12 +50,26 @@ impl TableSet {
         read(self.grid, &self.values[k * cells..(k + 1) * cells], self.coverage_words(k))
     }
 
-    /// Values of table `k` as f32, into `out`.
+    /// Values of table `k` as f32, into `out`, as [`TableSet::get`] reads
+    /// them.
     pub fn values_into(&self, k: usize, out: &mut [f32]) {
         let cells = self.grid.len();
-        for (o, v) in out.iter_mut().zip(&self.values[k * cells..(k + 1) * cells]) {
-            *o = v.to_f32();
+        let values = &self.values[k * cells..(k + 1) * cells];
+        values.convert_to_f32_slice(out);
+        if out.contains(&f32::INFINITY) {
+            out.fill(0.0);
+        } else {
+            out.iter_mut().for_each(|v| *v = v.max(0.0));
         }
+    }
+
+    /// Table `k`'s value at each cell as [`TableSet::get`] reads it, one
+    /// cell at a time (for readers of a few cells); `None` where `get`
+    /// reads the table as all zero.
+    pub fn cells(&self, k: usize) -> Option<impl Fn(usize) -> f32 + '_> {
+        let cells = self.grid.len();
+        let values = &self.values[k * cells..(k + 1) * cells];
+        readable(values).then_some(move |c: usize| value(values[c]))
     }
 
     /// Coverage words of table `k`.
@@ -116,8 +131,22 @@ impl TableSlot<'_> {
     }
 }
 
+/// How every reader takes a stored table: each value as f32, negative
+/// values and NaN (a damaged file) as 0, and a table holding an infinite
+/// value (one beyond `f16`'s range when it was stored) as all zero.
+fn readable(values: &[f16]) -> bool {
+    !values.iter().any(|v| v.to_bits() == f16::INFINITY.to_bits())
+}
+
+fn value(v: f16) -> f32 {
+    v.to_f32().max(0.0)
+}
+
 fn read(grid: NdfGrid, values: &[f16], words: &[u64]) -> NdfTable {
-    let values: Vec<f32> = values.iter().map(|v| v.to_f32().max(0.0)).collect();
+    if !readable(values) {
+        return NdfTable::zeros(grid);
+    }
+    let values: Vec<f32> = values.iter().map(|&v| value(v)).collect();
     let cov = Coverage::from_words(grid.len(), words);
     // Lengths match by construction and values are finite and >= 0.
     NdfTable::from_values(grid, values, cov).unwrap_or_else(|_| NdfTable::zeros(grid))
@@ -129,4 +158,38 @@ fn write(grid: NdfGrid, values: &mut [f16], words: &mut [u64], t: &NdfTable) {
         *d = f16::from_f32(*s);
     }
     words.copy_from_slice(t.coverage().words());
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_reader_takes_a_stored_table_the_same_way() {
+        let grid = NdfGrid::new(4, 8).unwrap();
+        let cells = grid.len();
+        let mut values: Vec<f16> = (0..3 * cells).map(|c| f16::from_f32(c as f32 * 0.25)).collect();
+        // Table 1 from a damaged file: a negative value and a NaN; table 2
+        // holds a value beyond f16's range (stored as infinity).
+        values[cells + 3] = f16::from_f32(-2.0);
+        values[cells + 5] = f16::NAN;
+        values[2 * cells + 7] = f16::from_f32(1e6);
+        let set = TableSet::from_raw(grid, 3, values, vec![u64::MAX; 3]).unwrap();
+        let mut into = vec![-1.0f32; cells];
+        for k in 0..3 {
+            let got = set.get(k);
+            set.values_into(k, &mut into);
+            assert_eq!(got.values(), &into[..], "table {k}");
+            match set.cells(k) {
+                Some(value) => assert!((0..cells).all(|c| value(c) == into[c]), "table {k}"),
+                None => assert!(into.iter().all(|&v| v == 0.0), "table {k}"),
+            }
+        }
+        assert_eq!(set.get(0).values()[9], 9.0 * 0.25);
+        assert_eq!(
+            (set.get(1).values()[3], set.get(1).values()[5], set.get(1).values()[4]),
+            (0.0, 0.0, (cells + 4) as f32 * 0.25)
+        );
+        assert!(set.cells(2).is_none() && set.get(2).values().iter().all(|&v| v == 0.0));
+    }
 }

@@ -229,6 +229,13 @@ impl NdfGrid {
     }
 }
 
+/// Bit `i` of a coverage bitmap stored as words ([`Coverage::words`],
+/// [`super::TableSet::coverage_words`]): whether cell `i` is observed.
+#[inline]
+pub fn bit(words: &[u64], i: usize) -> bool {
+    (words[i / 64] >> (i % 64)) & 1 == 1
+}
+
 /// One bit per cell: which cells of a table were observed.
 #[derive(Clone, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
 pub struct Coverage {
@@ -272,7 +279,7 @@ impl Coverage {
 
     #[inline]
     pub fn get(&self, i: usize) -> bool {
-        (self.bits[i / 64] >> (i % 64)) & 1 == 1
+        bit(&self.bits, i)
     }
 
     #[inline]

@@ -57,7 +57,7 @@ impl Core {
             .iter()
             .map(|&k| {
                 let w = tables.coverage_words(k);
-                (0..nt).take_while(|&t| (0..np).all(|p| (w[(t * np + p) / 64] >> ((t * np + p) % 64)) & 1 == 1)).count()
+                (0..nt).take_while(|&t| (0..np).all(|p| brdf::ndf::bit(w, t * np + p))).count()
             })
             .collect();
         full_rings.sort_unstable();
@@ -78,15 +78,10 @@ impl Core {
     /// The unrotated descriptors of `points`' tables, row-major.
     pub fn describe_all(&self, tables: &TableSet, points: &[usize]) -> Vec<f32> {
         let dlen = self.len();
-        let (values, _) = tables.raw();
-        let cells = self.grid.len();
         let mut out = vec![0.0f32; points.len() * dlen];
         out.par_chunks_mut(dlen.max(1)).zip(points.par_iter()).for_each(|(d, &p)| {
-            // As `TableSet::get` reads them: negative values (and NaN) are
-            // 0, and a table holding an infinite value is all 0.
-            let table = &values[p * cells..(p + 1) * cells];
-            if !table.iter().any(|v| v.is_infinite()) {
-                self.describe_with(|c| table[c].to_f32().max(0.0), 0.0, d);
+            if let Some(value) = tables.cells(p) {
+                self.describe_with(value, 0.0, d);
             }
         });
         out
@@ -142,7 +137,7 @@ pub fn coarse_mask(grid: NdfGrid, words: &[u64]) -> CoarseMask {
                 for p in p0..p1.min(np) {
                     let c = t * np + p;
                     all += 1;
-                    on += ((words[c / 64] >> (c % 64)) & 1) as usize;
+                    on += brdf::ndf::bit(words, c) as usize;
                 }
             }
             if all > 0 && 2 * on >= all {

@@ -140,10 +140,7 @@ pub struct SynthOutput {
 fn coverage_measure(set: &TableSet, p: usize, measures: &[f32]) -> f64 {
     let np = set.grid().n_phi as usize;
     let words = set.coverage_words(p);
-    (0..set.grid().len())
-        .filter(|&c| (words[c / 64] >> (c % 64)) & 1 == 1)
-        .map(|c| measures[c / np] as f64)
-        .sum::<f64>()
+    (0..set.grid().len()).filter(|&c| brdf::ndf::bit(words, c)).map(|c| measures[c / np] as f64).sum::<f64>()
         / std::f64::consts::PI
 }
 
@@ -167,8 +164,8 @@ fn cluster_tables(tables: &TableSet, points: &[usize], assign: &[u32], k: usize)
                 tables.values_into(p, &mut values);
                 let words = tables.coverage_words(p);
                 for cell in 0..cells {
-                    if (words[cell / 64] >> (cell % 64)) & 1 == 1 {
-                        sum[cell] += values[cell].max(0.0) as f64;
+                    if brdf::ndf::bit(words, cell) {
+                        sum[cell] += values[cell] as f64;
                         cnt[cell] += 1;
                     }
                 }

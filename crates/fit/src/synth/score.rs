@@ -246,12 +246,10 @@ impl Flat {
         Self::build(t.grid(), t.values(), t.coverage().words(), 2)
     }
 
-    /// Table `p` of `set` as a query (values below zero read as zero, as
-    /// [`TableSet::get`](brdf::ndf::TableSet::get) reads them).
+    /// Table `p` of `set` as a query.
     pub fn query(set: &brdf::ndf::TableSet, p: usize) -> Self {
         let mut values = vec![0.0f32; set.grid().len()];
         set.values_into(p, &mut values);
-        values.iter_mut().for_each(|v| *v = v.max(0.0));
         Self::build(set.grid(), &values, set.coverage_words(p), 1)
     }
 
@@ -260,7 +258,7 @@ impl Flat {
         let (mut values, mut mask) = (Vec::with_capacity(copies * g.len()), Vec::with_capacity(copies * g.len()));
         let mut ring_observed = Vec::with_capacity(g.n_theta as usize);
         for (ring, row) in table.chunks_exact(np).enumerate() {
-            let observed = |p: usize| (words[(ring * np + p) / 64] >> ((ring * np + p) % 64)) & 1 == 1;
+            let observed = |p: usize| brdf::ndf::bit(words, ring * np + p);
             let m: Vec<f32> = (0..np).map(|p| if observed(p) { 1.0 } else { 0.0 }).collect();
             ring_observed.push(m.iter().sum());
             for _ in 0..copies {
@@ -294,48 +292,41 @@ impl Flat {
 /// cell at a time.
 const LANES: usize = 8;
 
-/// One ring's sums over the overlap (see the module's notes): `A`, `B`,
-/// `C`, `N` and `G` before the ring's weight. `a0` and `m0` are the
-/// candidate turned by the whole sectors of the shift, `a1` and `m1` by one
-/// more; `f` blends them, and a blended cell counts as observed only if
-/// both were (`BLEND`; without it `f` is 0 and `a1` is not read).
-fn ring_sums<const BLEND: bool>(
-    qv: &[f32],
-    qm: &[f32],
-    a0: (&[f32], &[f32]),
-    a1: (&[f32], &[f32]),
+/// One ring's operands of [`score_at`]'s sums: the query's values and
+/// observed mask (`q`), the candidate turned by the whole sectors of the
+/// shift (`a0`) and by one more (`a1`), and the blend `f` between them.
+#[derive(Clone, Copy, Debug)]
+struct Ring<'a> {
+    q: (&'a [f32], &'a [f32]),
+    a0: (&'a [f32], &'a [f32]),
+    a1: (&'a [f32], &'a [f32]),
     f: f32,
-) -> [f32; 5] {
+}
+
+/// One ring's sums over the overlap (see the module's notes): `A`, `B`,
+/// `C`, `N` and `G` before the ring's weight. A blended cell counts as
+/// observed only if both its sources were (`BLEND`; without it `f` is 0 and
+/// `a1` is not read).
+fn ring_sums<const BLEND: bool>(r: &Ring) -> [f32; 5] {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx") {
         // SAFETY: the processor has AVX, checked just above.
-        return unsafe { ring_sums_avx::<BLEND>(qv, qm, a0, a1, f) };
+        return unsafe { ring_sums_avx::<BLEND>(r) };
     }
-    ring_sums_lanes::<BLEND>(qv, qm, a0, a1, f)
+    ring_sums_lanes::<BLEND>(r)
 }
 
-/// [`ring_sums`] compiled for AVX: eight lanes to a register, and no fused
-/// multiply-add, so the same sums to the last bit.
+/// [`ring_sums_lanes`] compiled for AVX: eight lanes to a register, and no
+/// fused multiply-add, so the same sums to the last bit.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx")]
-fn ring_sums_avx<const BLEND: bool>(
-    qv: &[f32],
-    qm: &[f32],
-    a0: (&[f32], &[f32]),
-    a1: (&[f32], &[f32]),
-    f: f32,
-) -> [f32; 5] {
-    ring_sums_lanes::<BLEND>(qv, qm, a0, a1, f)
+fn ring_sums_avx<const BLEND: bool>(r: &Ring) -> [f32; 5] {
+    ring_sums_lanes::<BLEND>(r)
 }
 
 #[inline(always)]
-fn ring_sums_lanes<const BLEND: bool>(
-    qv: &[f32],
-    qm: &[f32],
-    a0: (&[f32], &[f32]),
-    a1: (&[f32], &[f32]),
-    f: f32,
-) -> [f32; 5] {
+fn ring_sums_lanes<const BLEND: bool>(r: &Ring) -> [f32; 5] {
+    let (Ring { q: (qv, qm), a0, a1, f }, n) = (*r, r.q.0.len());
     type V = [f32; LANES];
     #[inline(always)]
     fn at(x: &[f32], k: usize) -> V {
@@ -358,13 +349,13 @@ fn ring_sums_lanes<const BLEND: bool>(
         acc[4] = zip(acc[4], zip(mp, mq, |a, b| (1.0 - a) * b), |a, b| a + b);
     }
     let mut acc = [[0.0f32; LANES]; 5];
-    let n = qv.len() - qv.len() % LANES;
-    for k in (0..n).step_by(LANES) {
+    let whole = n - n % LANES;
+    for k in (0..whole).step_by(LANES) {
         cell::<BLEND>(&mut acc, (at(qv, k), at(qm, k)), (at(a0.0, k), at(a0.1, k)), (at(a1.0, k), at(a1.1, k)), f);
     }
     // A ring not a multiple of LANES long: the rest one cell at a time,
     // into lane 0.
-    for i in n..qv.len() {
+    for i in whole..n {
         let one = |x: &[f32]| std::array::from_fn(|l| if l == 0 { x[i] } else { 0.0 });
         let mut part = [[0.0f32; LANES]; 5];
         cell::<BLEND>(&mut part, (one(qv), one(qm)), (one(a0.0), one(a0.1)), (one(a1.0), one(a1.1)), f);
@@ -402,10 +393,8 @@ pub fn score_at(
         if candidate.ring_observed[t] == 0.0 {
             continue;
         }
-        let (qv, qm) = query.ring(t);
-        let (a0, a1) = (candidate.turned(t, s0), candidate.turned(t, s1));
-        let [ra, rb, rc, rn, rg] =
-            if f != 0.0 { ring_sums::<true>(qv, qm, a0, a1, f) } else { ring_sums::<false>(qv, qm, a0, a1, f) };
+        let r = Ring { q: query.ring(t), a0: candidate.turned(t, s0), a1: candidate.turned(t, s1), f };
+        let [ra, rb, rc, rn, rg] = if f != 0.0 { ring_sums::<true>(&r) } else { ring_sums::<false>(&r) };
         a += w * ra as f64;
         b += w * rb as f64;
         c += w * rc as f64;
@@ -510,14 +499,8 @@ mod tests {
 
     /// The sums of the module's notes written one cell at a time, sector
     /// `p` into partial sum `p % LANES`, to hold [`ring_sums`] to.
-    fn ring_sums_by_cell(
-        qv: &[f32],
-        qm: &[f32],
-        a0: (&[f32], &[f32]),
-        a1: (&[f32], &[f32]),
-        f: f32,
-        blend: bool,
-    ) -> [f32; 5] {
+    fn ring_sums_by_cell(r: &Ring, blend: bool) -> [f32; 5] {
+        let Ring { q: (qv, qm), a0, a1, f } = *r;
         let mut acc = [[0.0f32; LANES]; 5];
         for i in 0..qv.len() {
             let l = if i < qv.len() - qv.len() % LANES { i % LANES } else { 0 };
@@ -548,17 +531,15 @@ mod tests {
                 };
                 let (q, c0, c1) = (ring(0.6), ring(0.7), ring(0.7));
                 let f = rng.random_range(0.0f32..1.0);
-                let a0 = (&c0.0[..], &c0.1[..]);
-                let a1 = (&c1.0[..], &c1.1[..]);
-                let blended = ring_sums::<true>(&q.0, &q.1, a0, a1, f);
-                assert_eq!(blended.map(f32::to_bits), ring_sums_by_cell(&q.0, &q.1, a0, a1, f, true).map(f32::to_bits));
-                let whole = ring_sums::<false>(&q.0, &q.1, a0, a1, 0.0);
-                assert_eq!(
-                    whole.map(f32::to_bits),
-                    ring_sums_by_cell(&q.0, &q.1, a0, a1, 0.0, false).map(f32::to_bits)
-                );
+                let r = Ring { q: (&q.0, &q.1), a0: (&c0.0, &c0.1), a1: (&c1.0, &c1.1), f };
+                let blended = ring_sums::<true>(&r);
+                assert_eq!(blended.map(f32::to_bits), ring_sums_by_cell(&r, true).map(f32::to_bits));
+                let r = Ring { f: 0.0, ..r };
+                let whole = ring_sums::<false>(&r);
+                assert_eq!(whole.map(f32::to_bits), ring_sums_by_cell(&r, false).map(f32::to_bits));
                 // The portable lanes, as on a processor without AVX.
-                let portable = ring_sums_lanes::<true>(&q.0, &q.1, a0, a1, f);
+                let r = Ring { f, ..r };
+                let portable = ring_sums_lanes::<true>(&r);
                 assert_eq!(portable.map(f32::to_bits), blended.map(f32::to_bits));
             }
         }
