@@ -50,8 +50,8 @@ impl TableSet {
         read(self.grid, &self.values[k * cells..(k + 1) * cells], self.coverage_words(k))
     }
 
-    /// Values of table `k` as f32, into `out`, as [`TableSet::get`] reads
-    /// them.
+    /// Values of table `k` as f32, into `out` (one value per cell of the
+    /// grid), as [`TableSet::get`] reads them.
     pub fn values_into(&self, k: usize, out: &mut [f32]) {
         let cells = self.grid.len();
         let values = &self.values[k * cells..(k + 1) * cells];
