@@ -9,6 +9,7 @@ use brdf::ndf::TableSet;
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
 use rayon::prelude::*;
+use std::num::NonZero;
 
 /// Lloyd iterations (assignments stop changing by then on every capture
 /// measured; the loop also stops as soon as they do).
@@ -37,6 +38,21 @@ pub fn by_table(tables: &TableSet, points: &[usize], descriptor: usize, k: usize
 /// Cluster `n` vectors of length `dim` (row-major in `data`) into `k`
 /// clusters. Returns the assignment of each vector.
 pub fn kmeans(data: &[f32], dim: usize, k: usize, seed: u64) -> Vec<u32> {
+    lloyd(data, dim, k, seed, true)
+}
+
+/// [`kmeans`]; with `bounds`, each pass after the first looks for a
+/// vector's nearest centre only where Hamerly's bounds (Hamerly 2010,
+/// "Making k-means even faster") leave it in doubt. Per vector they keep
+/// an upper bound `u` on its distance to its centre and a lower bound `l`
+/// on its distance to every other; when the centres move, `u` grows by its
+/// centre's move and `l` shrinks by the largest move (the triangle
+/// inequality). A vector stays with its centre while `u` is below both `l`
+/// and half the distance from its centre to the nearest other (no other
+/// centre can be nearer then), with [`SKIP_MARGIN`] to spare for
+/// rounding, so the assignments, and the centres, are those of the passes
+/// without bounds.
+fn lloyd(data: &[f32], dim: usize, k: usize, seed: u64, bounds: bool) -> Vec<u32> {
     let n = if dim == 0 { 0 } else { data.len() / dim };
     if n == 0 {
         return Vec::new();
@@ -45,8 +61,30 @@ pub fn kmeans(data: &[f32], dim: usize, k: usize, seed: u64) -> Vec<u32> {
     let row = |i: usize| &data[i * dim..(i + 1) * dim];
     let mut centres = seeds(data, dim, k, seed, true);
     let mut assign = vec![u32::MAX; n];
-    for _ in 0..MAX_ITERATIONS {
-        let next = assign_all(data, dim, &centres, k);
+    let (mut upper, mut lower) = (vec![f32::INFINITY; n], vec![0.0f32; n]);
+    for pass in 0..MAX_ITERATIONS {
+        let nearest = Nearest::new(&centres, dim, k);
+        let half_gap: Vec<f32> = if bounds && pass > 0 { nearest.half_gaps() } else { Vec::new() };
+        let next: Vec<u32> = (0..n)
+            .into_par_iter()
+            .zip(upper.par_iter_mut().zip(lower.par_iter_mut()))
+            .map(|(i, (u, l))| {
+                let a = assign[i];
+                if !half_gap.is_empty() {
+                    let m = half_gap[a as usize].max(*l);
+                    if SKIP_MARGIN * *u <= m {
+                        return a;
+                    }
+                    *u = d2(row(i), &centres[a as usize * dim..(a as usize + 1) * dim]).sqrt();
+                    if SKIP_MARGIN * *u <= m {
+                        return a;
+                    }
+                }
+                let (best, d_best, d_second) = nearest.two(row(i));
+                (*u, *l) = (d_best.sqrt(), d_second.sqrt());
+                best
+            })
+            .collect();
         let changed = next.iter().zip(&assign).any(|(a, b)| a != b);
         assign = next;
         if !changed {
@@ -61,13 +99,19 @@ pub fn kmeans(data: &[f32], dim: usize, k: usize, seed: u64) -> Vec<u32> {
                 *s += *v as f64;
             }
         }
+        let mut moved = vec![0.0f32; k];
         for c in 0..k {
             if counts[c] > 0 {
+                let before = centres[c * dim..(c + 1) * dim].to_vec();
                 for j in 0..dim {
                     centres[c * dim + j] = (sums[c * dim + j] / counts[c] as f64) as f32;
                 }
+                moved[c] = d2(&before, &centres[c * dim..(c + 1) * dim]).sqrt();
             }
         }
+        let most = moved.iter().copied().fold(0.0f32, f32::max);
+        upper.par_iter_mut().zip(&assign).for_each(|(u, &a)| *u += moved[a as usize]);
+        lower.par_iter_mut().for_each(|l| *l = (*l - most).max(0.0));
     }
     assign
 }
@@ -128,43 +172,74 @@ fn seeds(data: &[f32], dim: usize, k: usize, seed: u64, skip: bool) -> Vec<f32> 
 /// Above this many clusters, assignment queries a k-d tree of the centres.
 const TREE_ABOVE: usize = 256;
 
-fn assign_tree<const D: usize>(data: &[f32], centres: &[f32]) -> Vec<u32> {
-    let pts: Vec<[f32; D]> = centres.chunks_exact(D).map(|c| std::array::from_fn(|j| c[j])).collect();
-    let Ok(tree) = kiddo::ImmutableKdTree::<f32, D>::new_from_slice(&pts) else {
-        return assign_scan(data, D, centres, pts.len());
-    };
-    data.par_chunks_exact(D)
-        .map(|x| {
-            let q: [f32; D] = std::array::from_fn(|j| x[j]);
-            tree.query(&q).nearest_one::<kiddo::SquaredEuclidean<f32>>().execute().item as u32
-        })
-        .collect()
+/// The centres of one pass, to find a vector's nearest two: by a k-d tree
+/// (`kiddo`) above [`TREE_ABOVE`] clusters of 16 or 32 dimensions, else by
+/// scanning them all.
+struct Nearest<'a> {
+    centres: &'a [f32],
+    dim: usize,
+    tree: Tree,
 }
 
-fn assign_all(data: &[f32], dim: usize, centres: &[f32], k: usize) -> Vec<u32> {
-    match dim {
-        16 if k > TREE_ABOVE => assign_tree::<16>(data, centres),
-        32 if k > TREE_ABOVE => assign_tree::<32>(data, centres),
-        _ => assign_scan(data, dim, centres, k),
+enum Tree {
+    None,
+    D16(kiddo::ImmutableKdTree<f32, 16>),
+    D32(kiddo::ImmutableKdTree<f32, 32>),
+}
+
+impl<'a> Nearest<'a> {
+    fn new(centres: &'a [f32], dim: usize, k: usize) -> Self {
+        let tree = match dim {
+            16 if k > TREE_ABOVE => tree::<16>(centres).map_or(Tree::None, Tree::D16),
+            32 if k > TREE_ABOVE => tree::<32>(centres).map_or(Tree::None, Tree::D32),
+            _ => Tree::None,
+        };
+        Self { centres, dim, tree }
+    }
+
+    /// The nearest centre to `x` and the squared distances to it and to
+    /// the second nearest (infinite with one centre).
+    fn two(&self, x: &[f32]) -> (u32, f32, f32) {
+        match &self.tree {
+            Tree::D16(t) => tree_two(t, x),
+            Tree::D32(t) => tree_two(t, x),
+            Tree::None => {
+                let (mut best, mut d_best, mut d_second) = (0u32, f32::INFINITY, f32::INFINITY);
+                for (c, centre) in self.centres.chunks_exact(self.dim).enumerate() {
+                    let d = d2(x, centre);
+                    if d < d_best {
+                        (best, d_best, d_second) = (c as u32, d, d_best);
+                    } else if d < d_second {
+                        d_second = d;
+                    }
+                }
+                (best, d_best, d_second)
+            }
+        }
+    }
+
+    /// Per centre, half its distance to the nearest other: the second
+    /// nearest to its own position (the nearest is itself, or another
+    /// centre at the same place).
+    fn half_gaps(&self) -> Vec<f32> {
+        self.centres.par_chunks_exact(self.dim).map(|c| 0.5 * self.two(c).2.sqrt()).collect()
     }
 }
 
-fn assign_scan(data: &[f32], dim: usize, centres: &[f32], k: usize) -> Vec<u32> {
-    let n = data.len() / dim;
-    (0..n)
-        .into_par_iter()
-        .map(|i| {
-            let x = &data[i * dim..(i + 1) * dim];
-            let mut best = (0u32, f32::INFINITY);
-            for c in 0..k {
-                let d = d2(x, &centres[c * dim..(c + 1) * dim]);
-                if d < best.1 {
-                    best = (c as u32, d);
-                }
-            }
-            best.0
-        })
-        .collect()
+fn tree<const D: usize>(centres: &[f32]) -> Option<kiddo::ImmutableKdTree<f32, D>> {
+    let pts: Vec<[f32; D]> = centres.chunks_exact(D).map(|c| std::array::from_fn(|j| c[j])).collect();
+    kiddo::ImmutableKdTree::<f32, D>::new_from_slice(&pts).ok()
+}
+
+fn tree_two<const D: usize>(t: &kiddo::ImmutableKdTree<f32, D>, x: &[f32]) -> (u32, f32, f32) {
+    let q: [f32; D] = std::array::from_fn(|j| x[j]);
+    let two = NonZero::new(2).expect("2 is not 0");
+    let found = t.query(&q).nearest_n::<kiddo::SquaredEuclidean<f32>>(two).execute();
+    match found.as_slice() {
+        [a, b, ..] => (a.item as u32, a.distance, b.distance),
+        [a] => (a.item as u32, a.distance, f32::INFINITY),
+        [] => (0, f32::INFINITY, f32::INFINITY),
+    }
 }
 
 #[cfg(test)]
@@ -206,6 +281,27 @@ mod tests {
             let (with, without) = (seeds(&data, 16, 200, seed, true), seeds(&data, 16, 200, seed, false));
             assert_eq!(with.len(), 200 * 16);
             assert!(with.iter().zip(&without).all(|(a, b)| a.to_bits() == b.to_bits()), "seed {seed}");
+        }
+    }
+
+    #[test]
+    fn the_bounds_skipped_searches_change_nothing() {
+        use rand_distr::{Distribution, Normal};
+        // Clumps wide enough to overlap, so that vectors change clusters
+        // over several passes; 16 and 32 dimensions, with clusters
+        // found by scanning (40) and by the k-d tree (300).
+        let mut rng = Pcg64::seed_from_u64(5);
+        for (dim, k) in [(16usize, 40usize), (16, 300), (32, 300)] {
+            let noise = Normal::new(0.0f32, 0.25).unwrap();
+            let hubs: Vec<f32> = (0..60 * dim).map(|_| rng.random_range(-1.0f32..1.0)).collect();
+            let data: Vec<f32> = (0..6000)
+                .flat_map(|i| {
+                    let h = (i % 60) * dim;
+                    (0..dim).map(|j| hubs[h + j] + noise.sample(&mut rng)).collect::<Vec<_>>()
+                })
+                .collect();
+            let (with, without) = (lloyd(&data, dim, k, 3, true), lloyd(&data, dim, k, 3, false));
+            assert_eq!(with, without, "{dim} dimensions, {k} clusters");
         }
     }
 }
