@@ -54,13 +54,7 @@ impl TableSet {
     /// grid), as [`TableSet::get`] reads them.
     pub fn values_into(&self, k: usize, out: &mut [f32]) {
         let cells = self.grid.len();
-        let values = &self.values[k * cells..(k + 1) * cells];
-        values.convert_to_f32_slice(out);
-        if out.contains(&f32::INFINITY) {
-            out.fill(0.0);
-        } else {
-            out.iter_mut().for_each(|v| *v = v.max(0.0));
-        }
+        read_values(&self.values[k * cells..(k + 1) * cells], out);
     }
 
     /// Table `k`'s value at each cell as [`TableSet::get`] reads it, one
@@ -133,7 +127,21 @@ impl TableSlot<'_> {
 
 /// How every reader takes a stored table: each value as f32, negative
 /// values and NaN (a damaged file) as 0, and a table holding an infinite
-/// value (one beyond `f16`'s range when it was stored) as all zero.
+/// value (one beyond `f16`'s range when it was stored) as all zero. A
+/// whole table at once (converted by `half`'s slice conversion); false
+/// where it reads as all zero.
+fn read_values(values: &[f16], out: &mut [f32]) -> bool {
+    values.convert_to_f32_slice(out);
+    if out.contains(&f32::INFINITY) {
+        out.fill(0.0);
+        return false;
+    }
+    out.iter_mut().for_each(|v| *v = v.max(0.0));
+    true
+}
+
+/// [`read_values`]' rule one cell at a time: whether the table reads as
+/// other than all zero, and each cell's value where it does.
 fn readable(values: &[f16]) -> bool {
     !values.iter().any(|v| v.to_bits() == f16::INFINITY.to_bits())
 }
@@ -143,10 +151,11 @@ fn value(v: f16) -> f32 {
 }
 
 fn read(grid: NdfGrid, values: &[f16], words: &[u64]) -> NdfTable {
-    if !readable(values) {
+    let mut out = vec![0.0f32; values.len()];
+    if !read_values(values, &mut out) {
         return NdfTable::zeros(grid);
     }
-    let values: Vec<f32> = values.iter().map(|&v| value(v)).collect();
+    let values = out;
     let cov = Coverage::from_words(grid.len(), words);
     // Lengths match by construction and values are finite and >= 0.
     NdfTable::from_values(grid, values, cov).unwrap_or_else(|_| NdfTable::zeros(grid))

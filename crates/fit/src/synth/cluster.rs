@@ -102,11 +102,13 @@ fn lloyd(data: &[f32], dim: usize, k: usize, seed: u64, bounds: bool) -> Vec<u32
         let mut moved = vec![0.0f32; k];
         for c in 0..k {
             if counts[c] > 0 {
-                let before = centres[c * dim..(c + 1) * dim].to_vec();
+                let mut move2 = 0.0f32;
                 for j in 0..dim {
-                    centres[c * dim + j] = (sums[c * dim + j] / counts[c] as f64) as f32;
+                    let (old, new) = (centres[c * dim + j], (sums[c * dim + j] / counts[c] as f64) as f32);
+                    move2 += (old - new) * (old - new);
+                    centres[c * dim + j] = new;
                 }
-                moved[c] = d2(&before, &centres[c * dim..(c + 1) * dim]).sqrt();
+                moved[c] = move2.sqrt();
             }
         }
         let most = moved.iter().copied().fold(0.0f32, f32::max);
@@ -226,8 +228,10 @@ impl<'a> Nearest<'a> {
     }
 }
 
-fn tree<const D: usize>(centres: &[f32]) -> Option<kiddo::ImmutableKdTree<f32, D>> {
-    let pts: Vec<[f32; D]> = centres.chunks_exact(D).map(|c| std::array::from_fn(|j| c[j])).collect();
+/// A k-d tree of the `D`-long rows of `rows` (`None` where `kiddo`
+/// cannot build one).
+pub(crate) fn tree<const D: usize>(rows: &[f32]) -> Option<kiddo::ImmutableKdTree<f32, D>> {
+    let pts: Vec<[f32; D]> = rows.chunks_exact(D).map(|c| std::array::from_fn(|j| c[j])).collect();
     kiddo::ImmutableKdTree::<f32, D>::new_from_slice(&pts).ok()
 }
 

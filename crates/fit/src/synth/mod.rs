@@ -422,8 +422,7 @@ const TREE_ENTRIES: usize = 50_000;
 /// brute force otherwise).
 fn nearest(db: &[f32], queries: &[f32], dim: usize, n: usize) -> Vec<Vec<usize>> {
     fn tree<const D: usize>(db: &[f32], queries: &[f32], n: usize) -> Option<Vec<Vec<usize>>> {
-        let pts: Vec<[f32; D]> = db.chunks_exact(D).map(|c| std::array::from_fn(|j| c[j])).collect();
-        let t = kiddo::ImmutableKdTree::<f32, D>::new_from_slice(&pts).ok()?;
+        let t = cluster::tree::<D>(db)?;
         let k = NonZero::new(n)?;
         Some(
             queries
