@@ -4,15 +4,18 @@
 # which stage or which frames a figure comes from.
 #
 #   bash scripts/refit-variant.sh [--bin DIR] [--data DIR]
-#                                 [--drop-shorter] [--no-pooling] [--turn-members]
+#                                 [--drop-shorter] [--no-pooling]
+#                                 [--turn-members | --no-turn-members]
 #                                 [--ndf-theta N] [--kernel-scale X] CAPTURE OUT
 #
 # --drop-shorter leaves out the frames of an HDR bracket's shorter
 # exposures (a partial fit: the capture as if it had one exposure);
 # --no-pooling fits every point's NDF from its own samples (the capture's
-# settings without `pool`); --turn-members pools with each member turned to
-# its cluster's lobe axis (`fit::pooled::PoolSettings::turn`, off in the
-# presets); --ndf-theta N fits tables of N rings by 3N sectors (as
+# settings without `pool`); --turn-members lets the pool turn each member
+# to its cluster's lobe axis where held-out samples say it pays
+# (`fit::pooled::PoolSettings::turn`, on in the presets; for a capture made
+# before it was), --no-turn-members pools without turning; --ndf-theta N
+# fits tables of N rings by 3N sectors (as
 # `capture --ndf-theta`); --kernel-scale X sets the splat kernel's width
 # as a fraction of the local half-vector spacing
 # (`FitSettings::kernel_scale`, 0.5 in the presets). The frames are
@@ -26,7 +29,7 @@ bin=""
 data=""
 drop_shorter=0
 no_pooling=0
-turn_members=0
+turn_members=""
 ndf_theta=""
 kernel_scale=""
 while [ $# -gt 0 ]; do
@@ -36,12 +39,13 @@ while [ $# -gt 0 ]; do
     --drop-shorter) drop_shorter=1; shift ;;
     --no-pooling) no_pooling=1; shift ;;
     --turn-members) turn_members=1; shift ;;
+    --no-turn-members) turn_members=0; shift ;;
     --ndf-theta) ndf_theta="$2"; shift 2 ;;
     --kernel-scale) kernel_scale="$2"; shift 2 ;;
     *) break ;;
   esac
 done
-[ $# -eq 2 ] || { sed -n 2,22p "$0" >&2; exit 2; }
+[ $# -eq 2 ] || { sed -n 2,25p "$0" >&2; exit 2; }
 src="$(cd "$1" && pwd)"
 . scripts/common.sh
 release_bins
@@ -53,7 +57,8 @@ ln -s "$src/frames" "$out/frames"
 python3 - "$src" "$out" "$drop_shorter" "$no_pooling" "$turn_members" "$ndf_theta" "$kernel_scale" <<'PY'
 import json, sys
 src, out = sys.argv[1], sys.argv[2]
-drop_shorter, no_pooling, turn_members = (a == "1" for a in sys.argv[3:6])
+drop_shorter, no_pooling = (a == "1" for a in sys.argv[3:5])
+turn_members = sys.argv[5]
 ndf_theta, kernel_scale = sys.argv[6], sys.argv[7]
 info = json.load(open(f"{src}/capture.json"))
 if ndf_theta:
@@ -63,7 +68,7 @@ if kernel_scale:
 if no_pooling:
     info["settings"]["pool"] = None
 if turn_members and info["settings"].get("pool"):
-    info["settings"]["pool"]["turn"] = True
+    info["settings"]["pool"]["turn"] = turn_members == "1"
 json.dump(info, open(f"{out}/capture.json", "w"), indent=2)
 dropped = 0
 with open(f"{out}/manifest.jsonl", "w") as m:

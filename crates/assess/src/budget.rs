@@ -6,9 +6,10 @@
 //! the budget), then per point alone, then with its noise removed, then
 //! with each of the fitter's resolution knobs loosened. The noiseless rows
 //! are the method's own bias on this sampling; the rows after them say
-//! which knob that bias is in. The "members turned" rows pool with each
-//! member turned to its cluster's lobe axis (`fit::pooled::PoolSettings::turn`,
-//! off in the presets).
+//! which knob that bias is in. The pooled rows pool as the preset does,
+//! each member turned to its cluster's lobe axis where that predicts
+//! held-out samples better (`fit::pooled::PoolSettings::turn`); the
+//! "members not turned" rows pool without turning.
 //!
 //! The row "through camera pixels" gives each point, without noise,
 //! the samples of the mean BRDF over its footprint in the preset's
@@ -70,9 +71,9 @@ struct Variant {
     denser: bool,
     /// Pool each material's points (`fit::pooled`) as the preset does.
     pooled: bool,
-    /// Pool with each member turned to its cluster's axis
-    /// (`fit::pooled::PoolSettings::turn`).
-    turned: bool,
+    /// Pool without turning members to their cluster's axis
+    /// (`fit::pooled::PoolSettings::turn` off).
+    unturned: bool,
     /// Each point's samples through the preset's simulated camera's pixel
     /// footprint (`crate::bench::synthetic_through`).
     footprint: bool,
@@ -81,8 +82,15 @@ struct Variant {
 
 /// The preset's capture (with its noise) fitted per point alone: what
 /// each variant departs from.
-const AS_CAPTURED: Variant =
-    Variant { name: "", noise: true, denser: false, pooled: false, turned: false, footprint: false, settings: |_| {} };
+const AS_CAPTURED: Variant = Variant {
+    name: "",
+    noise: true,
+    denser: false,
+    pooled: false,
+    unturned: false,
+    footprint: false,
+    settings: |_| {},
+};
 
 fn variants() -> Vec<Variant> {
     vec![
@@ -95,8 +103,14 @@ fn variants() -> Vec<Variant> {
             footprint: true,
             ..AS_CAPTURED
         },
-        Variant { name: "as captured, pooled, members turned", pooled: true, turned: true, ..AS_CAPTURED },
-        Variant { name: "no noise, pooled, members turned", noise: false, pooled: true, turned: true, ..AS_CAPTURED },
+        Variant { name: "as captured, pooled, members not turned", pooled: true, unturned: true, ..AS_CAPTURED },
+        Variant {
+            name: "no noise, pooled, members not turned",
+            noise: false,
+            pooled: true,
+            unturned: true,
+            ..AS_CAPTURED
+        },
         Variant {
             name: "no noise, pooled, NDF table twice as fine",
             noise: false,
@@ -153,8 +167,9 @@ fn variants() -> Vec<Variant> {
 }
 
 /// The budget of `sample` (the stored material in `dir` where given, as
-/// `capture --sim-material` scans it) at the quality preset `q`.
-pub fn run(sample: &str, dir: Option<&std::path::Path>, q: &config::Quality) -> Result<Vec<Row>> {
+/// `capture --sim-material` scans it) at the quality preset `q`: every row,
+/// or those whose name contains `only`.
+pub fn run(sample: &str, dir: Option<&std::path::Path>, q: &config::Quality, only: Option<&str>) -> Result<Vec<Row>> {
     let material = crate::truth::sim_material(sample, dir)?;
     println!(
         "error budget: '{sample}' at the {} preset: {} x {} points, {} steps x every {} LED, NDF {} x {} cells",
@@ -175,13 +190,14 @@ pub fn run(sample: &str, dir: Option<&std::path::Path>, q: &config::Quality) -> 
         "row", "points", "ndf_obs", "shape_obs", "scale", "ndf_full", "brdf", "fit_s"
     );
     let mut rows = Vec::new();
-    for v in variants() {
+    for v in variants().into_iter().filter(|v| only.is_none_or(|o| v.name.contains(o))) {
         let (steps, stride) = if v.denser { (2 * q.steps, 1) } else { (q.steps, q.led_stride as u32) };
         let s = synthetic_through(material.clone(), q.grid, steps, stride, v.noise, v.footprint.then(|| camera(q)))?;
         let mut settings = q.fit.clone();
         (v.settings)(&mut settings);
         let t = Instant::now();
-        let pool = q.pool.clone().filter(|_| v.pooled).map(|p| fit::pooled::PoolSettings { turn: v.turned, ..p });
+        let pool =
+            q.pool.clone().filter(|_| v.pooled).map(|p| fit::pooled::PoolSettings { turn: p.turn && !v.unturned, ..p });
         let stages = fit::Stages { pool, ..fit::Stages::default() };
         let maps = fit::pipeline::run_stages(&s.ctx, s.store.clone(), settings.clone(), &stages, &|| false)?.maps;
         let fit_s = t.elapsed().as_secs_f64();

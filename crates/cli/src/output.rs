@@ -168,8 +168,9 @@ pub async fn finish_fit(
             rep.stage(
                 "fit",
                 format!(
-                    "pooling: {} points share their material's NDF ({} clusters), {} kept their own, in {:.1} s",
-                    ps.pooled, ps.clusters, ps.kept_own, out.timings.pool_s
+                    "pooling: {} points share their material's NDF ({} clusters, {} with members turned to its \
+                     lobe's axis), {} kept their own, in {:.1} s",
+                    ps.pooled, ps.clusters, ps.turned_clusters, ps.kept_own, out.timings.pool_s
                 ),
             );
         }

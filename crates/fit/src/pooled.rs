@@ -54,7 +54,7 @@
 //!    table's free parameters (a kernel wider than a cell ties neighbouring
 //!    cells together), so the test leans toward pooling.
 //!
-//! 5. **Turned members** (`PoolSettings::turn`, off in every preset). A
+//! 5. **Turned members** (`PoolSettings::turn`, on in every preset). A
 //!    lobe that turns across the sample (brushed metal's brushing, satin's
 //!    drifting weave, warp and weft a quarter turn apart) is one shape at
 //!    many angles, which unturned pools can share only by splitting by
@@ -64,19 +64,26 @@
 //!    difference before splatting (its masking and the chi-square likewise),
 //!    so the pool estimates one shape in the cluster's frame. An axis read
 //!    off a noisy own table is several degrees from the one its samples
-//!    support, which a lobe a few degrees wide does not forgive, so
-//!    the final clusters refine every member's turn by least chi-square
-//!    against the pooled table (+-20 degrees in 2.5 degree steps, then
-//!    +-2 degrees in 0.5), estimate the table again with those turns, and
-//!    refine once more (finely) before the choice; the member takes the
+//!    support, which a lobe a few degrees wide does not forgive, so each
+//!    member's turn is refined by least chi-square against a turned table
+//!    of its cluster (+-20 degrees in 2.5 degree steps, then +-2 degrees
+//!    in 0.5): the one the cluster's held-out test estimated (below), from
+//!    half the samples of up to 256 of its members, themselves turned so
+//!    against a first table estimated with their axes' turns. The
+//!    cluster's table is estimated with those turns and each member's
+//!    refined once more (finely) before the choice; the member takes the
 //!    pooled table turned by its turn. Members whose own table is too
 //!    nearly isotropic to have an axis ([`MIN_ECCENTRICITY`]) are not
-//!    turned. `refl bench budget` measures it in its "members turned" rows:
-//!    at the fast preset it lowers satin's pooled NDF error from 0.107 to
-//!    0.060 and red-satin's from 0.121 to 0.090, and raises ward's from
-//!    0.063 to 0.072 and wallpaper's from 0.19 to 0.98 (an isotropic surface
-//!    whose partial tables look elongated). It is therefore off until a
-//!    test of when a lobe has an axis holds on every sample.
+//!    turned. Turning is the data's decision ([`turning_pays_in`]): on the
+//!    whole sample first (where it does not pay, the stage pools exactly
+//!    as without it), then on each final cluster, the turned and the
+//!    unturned table are estimated from half the samples of up to 256 of
+//!    its members and scored on the other half. In `refl bench budget` at the fast preset
+//!    it lowers satin's pooled NDF error from 0.107 to 0.060 and
+//!    red-satin's from 0.121 to 0.090, and refuses to turn ward (one lobe
+//!    everywhere) and wallpaper (isotropic), whose figures are those
+//!    without turning; turned regardless, wallpaper's went from 0.19 to
+//!    0.98 and ward's from 0.063 to 0.072.
 //!
 //! The stage runs after synthesis: a pooled point's table is the pooled
 //! one on the cells the pool observed, joined with its own completed table
@@ -108,11 +115,11 @@ pub struct PoolSettings {
     pub clusters: u32,
     pub seed: u64,
     /// Turn each member's half vectors by its lobe's axis' difference from
-    /// its cluster's, so that points whose lobes turn across the sample
-    /// share one shape (module notes, "Turned members"). Off in every
-    /// preset: `refl bench budget` measures it (its "members turned"
-    /// rows), `scripts/refit-variant.sh --turn-members` on a stored
-    /// capture; it helps some samples and hurts others.
+    /// its cluster's where that predicts held-out samples better, so that
+    /// points whose lobes turn across the sample share one shape (module
+    /// notes, "Turned members"). On in every preset; `refl bench budget`'s
+    /// "members not turned" rows and `scripts/refit-variant.sh
+    /// --no-turn-members` pool without it.
     #[serde(default)]
     pub turn: bool,
 }
@@ -137,6 +144,10 @@ pub struct PoolStats {
     /// table's parameters.
     #[serde(default)]
     pub splits_refused: usize,
+    /// Clusters whose members were turned to the cluster's lobe axis
+    /// (`PoolSettings::turn`, where that predicted held-out samples better).
+    #[serde(default)]
+    pub turned_clusters: usize,
 }
 
 /// Rounds of (pooled table, per-point scale, masking).
@@ -218,6 +229,12 @@ pub fn pool(
             Member::new(p, gather(ctx, store, p, settings), maps_ref, op, &own, pool.turn)
         })
         .collect();
+    let mut members = members;
+    let root = if pool.turn { turning_pays(settings, op, &members) } else { None };
+    let turn = root.is_some();
+    if !turn {
+        members.iter_mut().for_each(|m| m.axis = None);
+    }
     let core = crate::synth::descriptor::Core::find(&maps.tables, &eligible, DESCRIPTOR);
     let descriptors = core.describe_all(&maps.tables, &eligible);
     let dim = core.len();
@@ -254,18 +271,30 @@ pub fn pool(
     }
     // Each settled cluster's table on all its points (a cluster too small
     // to pool, or without a table, pools nothing).
-    let chosen: Vec<Option<Vec<(usize, NdfTable, f32)>>> = settled
+    let chosen: Vec<Option<(Vec<(usize, NdfTable, f32)>, bool)>> = settled
         .par_iter()
         .map(|cluster| {
-            let est = (cluster.len() >= MIN_MEMBERS).then(|| estimate(settings, op, &members, cluster)).flatten();
-            let est =
-                if pool.turn { est.and_then(|e| estimate_refined(settings, op, &members, cluster, &e)) } else { est };
+            // Turned where held-out samples say it pays; a cluster of every
+            // member has had its test already ([`turning_pays`]).
+            let reference = if !turn || cluster.len() < MIN_MEMBERS {
+                None
+            } else if cluster.len() == members.len() {
+                root.clone()
+            } else {
+                turning_pays_in(settings, op, &members, cluster)
+            };
+            let (est, turned) = match reference {
+                _ if cluster.len() < MIN_MEMBERS => (None, false),
+                Some(r) => (estimate_against(settings, op, &members, cluster, &r), true),
+                None => (estimate_turned(settings, op, &members, cluster, Some(vec![0.0; cluster.len()])), false),
+            };
             ctx.progress.advance(cluster.len() as u64);
-            est.map(|e| choose(maps_ref, op, &members, cluster, &e, observed, pool.turn))
+            est.map(|e| (choose(maps_ref, op, &members, cluster, &e, observed, turned), turned))
         })
         .collect();
     stats.clusters = chosen.iter().filter(|c| c.is_some()).count();
-    for (p, table, k_s) in chosen.into_iter().flatten().flatten() {
+    stats.turned_clusters = chosen.iter().filter(|c| c.as_ref().is_some_and(|c| c.1)).count();
+    for (p, table, k_s) in chosen.into_iter().flatten().flat_map(|c| c.0) {
         let colour_lum = lum(maps.ks[p]);
         let colour = maps.ks[p].map(|c| if colour_lum > 0.0 { c / colour_lum } else { 1.0 });
         maps.ks[p] = colour.map(|c| c * k_s);
@@ -430,21 +459,105 @@ fn estimate(settings: &FitSettings, op: &MaskingOperator, members: &[Member], cl
     estimate_turned(settings, op, members, cluster, None)
 }
 
-/// The table of `cluster` estimated again with the turn of every member
-/// that has an axis refined against `est`'s table ([`refine_turn`]).
-fn estimate_refined(
+/// A turned table that predicted a cluster's held-out samples better than
+/// the unturned one ([`turning_pays_in`]), and the axis of its frame (the
+/// mean axis of the members it was estimated from).
+#[derive(Clone)]
+struct Reference {
+    table: NdfTable,
+    axis: Option<f32>,
+}
+
+/// The table of `cluster` with every member that has an axis turned by the
+/// turn that fits its samples best to `r`'s table ([`refine_turn`], about
+/// its axis' turn from `r`'s).
+fn estimate_against(
     settings: &FitSettings,
     op: &MaskingOperator,
     members: &[Member],
     cluster: &[usize],
-    est: &Estimate,
+    r: &Reference,
 ) -> Option<Estimate> {
-    let refined = |(&j, &t): (&usize, &f32)| {
-        let mb = &members[j];
-        if mb.axis.is_some() { refine_turn(mb, &est.table, t, true) } else { t }
-    };
-    let turns = cluster.iter().zip(&est.turns).map(refined).collect();
+    let turns = cluster
+        .par_iter()
+        .map(|&j| match (members[j].axis, r.axis) {
+            (Some(a), Some(c)) => refine_turn(&members[j], &r.table, axis_turn(a, c), true),
+            _ => 0.0,
+        })
+        .collect();
     estimate_turned(settings, op, members, cluster, Some(turns))
+}
+
+/// Whether turning members pays on this sample at all ([`turning_pays_in`]
+/// on every member as one cluster; its reference table where it does).
+/// Where it does not, the stage pools
+/// exactly as without turning, its splits included (whose tests estimate
+/// with turned members too).
+fn turning_pays(settings: &FitSettings, op: &MaskingOperator, members: &[Member]) -> Option<Reference> {
+    let all: Vec<usize> = (0..members.len()).collect();
+    turning_pays_in(settings, op, members, &all)
+}
+
+/// Whether turning `cluster`'s members explains samples the tables did not
+/// see better than pooling them unturned, on at most [`TEST_POINTS`] of
+/// its members spread over it: each member's samples alternately in a
+/// training half, from which both tables (and the turned members' turns)
+/// are estimated, and a held-out half, scored under each (the turned
+/// table turned to the member, as [`choose`] gives it) at the member's best
+/// scale. Held out, because every turn is fitted to its member's own
+/// samples and the splat's kernels share each sample among cells, so no
+/// count of parameters prices a turned table fairly against an unturned
+/// one; scored on samples neither saw, the two need none. What it
+/// refuses: turns that fit noise (one lobe everywhere, its axes read a few
+/// degrees off) or that scatter a shared lobe (axes misread), tested. An
+/// isotropic lobe may be turned where that predicts better (its members'
+/// half vectors then spread over more azimuths); its shape does not
+/// change with a turn. Where turning pays, the turned table is the
+/// reference every member of the cluster is turned against
+/// ([`estimate_against`]).
+fn turning_pays_in(
+    settings: &FitSettings,
+    op: &MaskingOperator,
+    members: &[Member],
+    cluster: &[usize],
+) -> Option<Reference> {
+    let stride = cluster.len().div_ceil(TEST_POINTS).max(1);
+    let (train, test): (Vec<Member>, Vec<Member>) =
+        cluster.iter().step_by(stride).map(|&j| members[j].halves()).unzip();
+    if train.len() < MIN_MEMBERS {
+        return None;
+    }
+    let all: Vec<usize> = (0..train.len()).collect();
+    // The turned table: estimated with the members turned by their axes,
+    // then again with their turns refined against that.
+    let axis = cluster_axis(&train, &all);
+    let (plain, turned) = rayon::join(
+        || estimate_turned(settings, op, &train, &all, Some(vec![0.0; all.len()])),
+        || {
+            let first = Reference { table: estimate(settings, op, &train, &all)?.table, axis };
+            estimate_against(settings, op, &train, &all, &first)
+        },
+    );
+    let held_out = |fit: Fit| fit.scale().map_or(fit.ss, |k| fit.chi2(k));
+    match (plain, turned) {
+        (Some(p), Some(t)) => {
+            let m = op.projected_areas(&p.table);
+            let plain: f64 = test.par_iter().map(|mb| held_out(Fit::of(mb, &p.table, &m))).sum();
+            let turned: f64 = test
+                .par_iter()
+                .zip(&train)
+                .zip(&t.turns)
+                .map(|((mb, tr), &turn)| {
+                    let turn = if tr.axis.is_some() { refine_turn(tr, &t.table, turn, false) } else { turn };
+                    let table = if turn == 0.0 { t.table.clone() } else { t.table.rotated(turn) };
+                    held_out(Fit::of(mb, &table, &op.projected_areas(&table)))
+                })
+                .sum();
+            (turned < plain).then_some(Reference { table: t.table, axis })
+        }
+        (None, Some(t)) => Some(Reference { table: t.table, axis }),
+        _ => None,
+    }
 }
 
 /// The pooled table with each member turned by `turns` (in the cluster's
@@ -662,6 +775,14 @@ impl Member {
     }
 }
 
+impl Member {
+    /// The member with its even-numbered samples and with its odd ones.
+    fn halves(&self) -> (Member, Member) {
+        let part = |r: usize| Member { samples: self.samples.iter().skip(r).step_by(2).copied().collect(), ..*self };
+        (part(0), part(1))
+    }
+}
+
 /// The axis of a table's lobe about the normal, in `(-pi/2, pi/2]`: the
 /// principal direction of its second moment in the projected disk
 /// (`sin theta (cos phi, sin phi)`, each cell weighted by its value and
@@ -694,10 +815,8 @@ fn lobe_axis(table: &NdfTable) -> Option<f32> {
 /// random direction, and turning its samples by it only scatters them.
 /// A whole Beckmann lobe has `(a_y^2 - a_x^2) / (a_y^2 + a_x^2)`: 0.85 for
 /// satin's threads (`alpha` 0.1 by 0.35). Not enough on its own: a partial
-/// table cut off by its observed region looks elongated, and in `refl
-/// bench budget` (whose tables are partial: no synthesis) wallpaper, an
-/// isotropic surface, has its pooled NDF error go from 0.19 to 0.98 with
-/// `turn`.
+/// table cut off by its observed region looks elongated, so whether the
+/// turns are kept is the held-out samples' decision ([`turning_pays_in`]).
 const MIN_ECCENTRICITY: f64 = 0.3;
 
 /// The axis of a cluster: the mean of its members' axes as axes (angles
@@ -864,6 +983,7 @@ impl Fit {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::f32::consts::PI;
 
     fn est(chi2: f64, cells: usize, samples: usize, members: usize) -> Estimate {
         Estimate {
@@ -959,5 +1079,90 @@ mod tests {
         // A fit below the noise never lowers the price.
         let (a, b) = (est(2_000.0, 100, 5_100, 50), est(2_000.0, 100, 5_100, 50));
         assert_eq!(overdispersion(&[&a, &b]), 1.0);
+    }
+
+    /// A fixed scatter in [-0.5, 0.5) by index.
+    fn spread_of(j: usize) -> f32 {
+        ((j * 37) % 61) as f32 / 60.0 - 0.5
+    }
+
+    /// Members that see a lobe through the same lights (a cone of them
+    /// about a view 10 degrees off the normal), member `j`'s lobe turned by
+    /// `angle(j)` and its axis read as `axis(j)`, each sample with noise of
+    /// 3% of its value over a floor.
+    fn members_seeing(
+        alpha: (f32, f32),
+        n: usize,
+        angle: impl Fn(usize) -> f32,
+        axis: impl Fn(usize) -> Option<f32>,
+        seed: u64,
+    ) -> (FitSettings, MaskingOperator, Vec<Member>) {
+        use brdf::ndf::Ndf;
+        use rand::SeedableRng;
+        use rand_distr::{Distribution, Normal};
+        let settings = FitSettings::default();
+        let op = MaskingOperator::new(settings.grid);
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(seed);
+        let unit = Normal::new(0.0f32, 1.0).unwrap();
+        let o = Vec3::new(10f32.to_radians().sin(), 0.0, 10f32.to_radians().cos());
+        let members = (0..n)
+            .map(|j| {
+                let lobe = brdf::ndf::Beckmann::new(alpha.0, alpha.1, angle(j));
+                let mut truth = NdfTable::from_fn(settings.grid, 3, |h| lobe.d(h));
+                truth.normalize();
+                let m = op.projected_areas(&truth);
+                let sigma_o = m.projected_area(o);
+                let mut samples = Vec::new();
+                // Each member's lights where its place on the sample puts
+                // them: the same pattern, shifted.
+                let (dt, dp) = (spread_of(j * 3 + 1) + 0.5, spread_of(j * 5 + 2) + 0.5);
+                for t in 1..18 {
+                    for q in 0..40 {
+                        let theta = (4.0 * (t as f32 + dt)).to_radians();
+                        let phi = (q as f32 + dp) * 2.0 * PI / 40.0;
+                        let i = Vec3::new(theta.sin() * phi.cos(), theta.sin() * phi.sin(), theta.cos());
+                        let h = (i + o).normalize();
+                        let masking = 4.0 * m.projected_area(i) * sigma_o;
+                        let value = 0.5 * lobe.d(h) / masking;
+                        let sd = 0.03 * value + 0.002;
+                        samples.push(PoolSample {
+                            i: op.locate(i),
+                            h,
+                            spec: value + sd * unit.sample(&mut rng),
+                            var: sd * sd,
+                            fresnel: 1.0,
+                            kernel_rad: 0.06,
+                            own_masking: masking,
+                        });
+                    }
+                }
+                Member { p: j, o, samples, k_s: 0.5, axis: axis(j) }
+            })
+            .collect();
+        (settings, op, members)
+    }
+
+    /// Turning pays where the lobes turn across the sample and not where
+    /// they have no axis to turn or share one: the case that made
+    /// `refl bench budget`'s wallpaper, an isotropic surface whose noisy
+    /// partial tables had axes, go from 0.19 to 0.98 NDF error when every
+    /// such member was turned.
+    #[test]
+    fn members_are_turned_only_where_that_explains_their_samples_better_than_it_costs() {
+        let spread = spread_of;
+        // Satin-like threads at angles 60 degrees apart from end to end,
+        // each axis read a degree or two off: turning pays.
+        let turning = |j: usize| spread(j) * 60f32.to_radians();
+        let (settings, op, members) =
+            members_seeing((0.1, 0.35), 24, turning, |j| Some(turning(j) + 0.03 * spread(j * 7)), 1);
+        assert!(turning_pays(&settings, &op, &members).is_some(), "lobes that turn across the sample");
+        // One anisotropic lobe everywhere, its axis misread at random on
+        // every point: turning by those axes scatters the shared lobe.
+        let (settings, op, members) = members_seeing((0.1, 0.3), 24, |_| 0.5, |j| Some(spread(j) * PI), 2);
+        assert!(turning_pays(&settings, &op, &members).is_none(), "axes read at random");
+        // One anisotropic lobe everywhere, the axes a few degrees off it:
+        // the turns would fit only the noise.
+        let (settings, op, members) = members_seeing((0.1, 0.3), 24, |_| 0.5, |j| Some(0.5 + 0.05 * spread(j)), 3);
+        assert!(turning_pays(&settings, &op, &members).is_none(), "one lobe everywhere");
     }
 }

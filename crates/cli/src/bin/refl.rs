@@ -243,6 +243,9 @@ enum BenchCmd {
         /// Also write the rows as JSON to this file.
         #[arg(long)]
         json: Option<std::path::PathBuf>,
+        /// Only the rows whose name contains this text (e.g. "pooled").
+        #[arg(long, value_name = "TEXT")]
+        rows: Option<String>,
     },
     /// The fitter's stages (points/s) and peak memory on a synthetic
     /// capture. Default: the balanced preset's size (96 x 96 points, 64
@@ -573,11 +576,12 @@ fn main() -> ExitCode {
                     tokio::task::block_in_place(|| assess::bench::camera(&sample, px, frames)).map(|_| ())
                 }
                 BenchCmd::Protocol { n } => assess::bench::protocol(n).await,
-                BenchCmd::Budget { sample, sim_material, quality, json } => {
+                BenchCmd::Budget { sample, sim_material, quality, json, rows } => {
                     let q = config::preset(&quality)
                         .ok_or_else(|| cli::usage(anyhow::anyhow!("unknown quality '{quality}'")))?;
-                    let rows =
-                        tokio::task::block_in_place(|| assess::budget::run(&sample, sim_material.as_deref(), &q))?;
+                    let rows = tokio::task::block_in_place(|| {
+                        assess::budget::run(&sample, sim_material.as_deref(), &q, rows.as_deref())
+                    })?;
                     if let Some(p) = json {
                         std::fs::write(&p, serde_json::to_vec_pretty(&rows)?)
                             .with_context(|| format!("cannot write {}", p.display()))?;
