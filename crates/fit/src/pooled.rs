@@ -79,8 +79,8 @@
 //!    as without it), then on each final cluster, the turned and the
 //!    unturned table are estimated from half the samples of up to 256 of
 //!    its members and scored on the other half. In `refl bench budget` at the fast preset
-//!    it lowers satin's pooled NDF error from 0.107 to 0.060 and
-//!    red-satin's from 0.121 to 0.090, and refuses to turn ward (one lobe
+//!    it lowers satin's pooled NDF error from 0.107 to 0.057 and
+//!    red-satin's from 0.121 to 0.088, and refuses to turn ward (one lobe
 //!    everywhere) and wallpaper (isotropic), whose figures are those
 //!    without turning; turned regardless, wallpaper's went from 0.19 to
 //!    0.98 and ward's from 0.063 to 0.072.
