@@ -490,9 +490,8 @@ fn estimate_against(
 
 /// Whether turning members pays on this sample at all ([`turning_pays_in`]
 /// on every member as one cluster; its reference table where it does).
-/// Where it does not, the stage pools
-/// exactly as without turning, its splits included (whose tests estimate
-/// with turned members too).
+/// Where it does not, the stage pools exactly as without turning, its
+/// splits included (whose tests estimate with turned members too).
 fn turning_pays(settings: &FitSettings, op: &MaskingOperator, members: &[Member]) -> Option<Reference> {
     let all: Vec<usize> = (0..members.len()).collect();
     turning_pays_in(settings, op, members, &all)
@@ -1086,8 +1085,9 @@ mod tests {
         ((j * 37) % 61) as f32 / 60.0 - 0.5
     }
 
-    /// Members that see a lobe through the same lights (a cone of them
-    /// about a view 10 degrees off the normal), member `j`'s lobe turned by
+    /// Members that see a lobe through one pattern of lights (a cone of
+    /// them about a view 10 degrees off the normal, shifted by a fraction
+    /// of its spacing for each member), member `j`'s lobe turned by
     /// `angle(j)` and its axis read as `axis(j)`, each sample with noise of
     /// 3% of its value over a floor.
     fn members_seeing(
