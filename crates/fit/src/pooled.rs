@@ -222,14 +222,13 @@ pub fn pool(
     }
     ctx.progress.begin(crate::FitStage::Pooling, 2 * eligible.len() as u64);
     let maps_ref = &*maps;
-    let members: Vec<Member> = eligible
+    let mut members: Vec<Member> = eligible
         .par_iter()
         .map(|&p| {
             let own = op.projected_areas(&maps_ref.tables.get(p));
             Member::new(p, gather(ctx, store, p, settings), maps_ref, op, &own, pool.turn)
         })
         .collect();
-    let mut members = members;
     let root = if pool.turn { turning_pays(settings, op, &members) } else { None };
     let turn = root.is_some();
     if !turn {
@@ -772,9 +771,7 @@ impl Member {
         let axis = if turn { lobe_axis(&maps.tables.get(p)) } else { None };
         Member { p, o: ps.o, samples, k_s: lum(maps.ks[p]), axis }
     }
-}
 
-impl Member {
     /// The member with its even-numbered samples and with its odd ones.
     fn halves(&self) -> (Member, Member) {
         let part = |r: usize| Member { samples: self.samples.iter().skip(r).step_by(2).copied().collect(), ..*self };
