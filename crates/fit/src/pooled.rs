@@ -578,15 +578,19 @@ fn estimate_turned(
         None => vec![0.0; cluster.len()],
     });
     let at: Vec<KernelAt> = cluster
-        .iter()
+        .par_iter()
         .zip(&turns)
-        .flat_map(|(&j, &turn)| members[j].samples.iter().map(move |x| (x, Unturn::new(turn))))
-        .map(|(x, turn)| {
-            // The turned half vector's angles, once for the kernel, the
-            // cell size and every round's fit.
-            let mut k = KernelAt::new(turn.apply(x.h), 0.0);
-            k.r = (x.kernel_rad * shrink).max(MIN_KERNEL_CELLS * cell_angle(grid, &k)).max(crate::tol::MIN_KERNEL_RAD);
-            k
+        .flat_map_iter(|(&j, &turn)| {
+            let turn = Unturn::new(turn);
+            members[j].samples.iter().map(move |x| {
+                // The turned half vector's angles, once for the kernel, the
+                // cell size and every round's fit.
+                let mut k = KernelAt::new(turn.apply(x.h), 0.0);
+                k.r = (x.kernel_rad * shrink)
+                    .max(MIN_KERNEL_CELLS * cell_angle(grid, &k))
+                    .max(crate::tol::MIN_KERNEL_RAD);
+                k
+            })
         })
         .collect();
     // Where each member's samples start in `at`.
@@ -863,29 +867,31 @@ const FINE_STEPS: i32 = 4;
 /// puts several degrees off. `coarse` searches +-20 degrees first; the
 /// fine search alone is +-2.
 fn refine_turn(mb: &Member, table: &NdfTable, turn: f32, coarse: bool) -> f32 {
-    // Each sample's polar angle and azimuth once; a turn only shifts the
-    // azimuth at which the table is read. `(theta, phi, s, w, f/denom)`.
+    // Each sample's rings and azimuth once: a turn only shifts the azimuth
+    // at which the table is read. `(ring offsets, ring fraction, phi, s,
+    // w, f/denom)`; the weighted `s^2` does not depend on the turn.
     let grid = table.grid();
     let np = grid.n_phi as usize;
-    let read: Vec<(f32, f32, f64, f64, f32)> = mb
+    let read: Vec<([usize; 2], f32, f32, f64, f64, f32)> = mb
         .samples
         .iter()
         .filter(|x| x.own_masking > 0.0 && x.h.z >= 0.0)
         .map(|x| {
             let h = x.h;
-            (brdf::frame::polar(h), brdf::frame::phi(h), x.spec as f64, 1.0 / x.var as f64, x.fresnel / x.own_masking)
+            let (t, ft) = grid.rings_at(brdf::frame::polar(h));
+            let rows = [t[0] * np, t[1] * np];
+            (rows, ft, brdf::frame::phi(h), x.spec as f64, 1.0 / x.var as f64, x.fresnel / x.own_masking)
         })
         .collect();
+    let ss: f64 = read.iter().fold(0.0, |ss, &(_, _, _, s, w, _)| ss + w * s * s);
     let score = |t: f32| {
         let v = table.values();
-        let (mut ss, mut sg, mut gg) = (0.0f64, 0.0f64, 0.0f64);
-        for &(theta, phi, s, w, k) in &read {
-            let b = grid.bilinear_at(theta, phi - t);
-            let at = |t: usize, p: usize| v[t * np + p];
-            let lo = at(b.t[0], b.p[0]) * (1.0 - b.fp) + at(b.t[0], b.p[1]) * b.fp;
-            let hi = at(b.t[1], b.p[0]) * (1.0 - b.fp) + at(b.t[1], b.p[1]) * b.fp;
-            let g = ((lo * (1.0 - b.ft) + hi * b.ft) * k) as f64;
-            ss += w * s * s;
+        let (mut sg, mut gg) = (0.0f64, 0.0f64);
+        for &(rows, ft, phi, s, w, k) in &read {
+            let (p, fp) = grid.sectors_at(phi - t);
+            let lo = v[rows[0] + p[0]] * (1.0 - fp) + v[rows[0] + p[1]] * fp;
+            let hi = v[rows[1] + p[0]] * (1.0 - fp) + v[rows[1] + p[1]] * fp;
+            let g = ((lo * (1.0 - ft) + hi * ft) * k) as f64;
             sg += w * s * g;
             gg += w * g * g;
         }

@@ -200,15 +200,33 @@ impl NdfGrid {
 
     /// [`NdfGrid::bilinear`] from the direction's polar angle and azimuth.
     pub fn bilinear_at(&self, theta: f32, phi: f32) -> Bilinear {
-        let (u, p) = self.coords_at(theta, phi);
-        let (nt, np) = (self.n_theta as usize, self.n_phi as usize);
+        let (t, ft) = self.rings_at(theta);
+        let (p, fp) = self.sectors_at(phi);
+        Bilinear { t, ft, p, fp }
+    }
+
+    /// The polar half of [`NdfGrid::bilinear_at`]: the two rings whose
+    /// centres bracket `theta` and the fraction toward the second (for a
+    /// caller that reads one direction at many azimuths).
+    #[inline]
+    pub fn rings_at(&self, theta: f32) -> ([usize; 2], f32) {
+        let (u, _) = self.coords_at(theta, 0.0);
+        let nt = self.n_theta as usize;
         let tu = (u - 0.5).clamp(0.0, (nt - 1) as f32);
         let t0 = (tu as usize).min(nt - 1);
-        let pp = p - 0.5;
+        ([t0, (t0 + 1).min(nt - 1)], tu - t0 as f32)
+    }
+
+    /// The azimuthal half of [`NdfGrid::bilinear_at`]: the two sectors
+    /// whose centres bracket `phi` and the fraction toward the second.
+    #[inline]
+    pub fn sectors_at(&self, phi: f32) -> ([usize; 2], f32) {
+        let np = self.n_phi as usize;
+        let pp = phi / self.dphi() - 0.5;
         let pf = frame::floor(pp);
         let p0 = wrap(pf as i64, np);
         let p1 = if p0 + 1 == np { 0 } else { p0 + 1 };
-        Bilinear { t: [t0, (t0 + 1).min(nt - 1)], ft: tu - t0 as f32, p: [p0, p1], fp: pp - pf }
+        ([p0, p1], pp - pf)
     }
 
     /// The cell holding a direction at or above the horizon.
