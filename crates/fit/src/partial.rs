@@ -420,10 +420,17 @@ pub(crate) enum Kernels<'a> {
     /// Computed once and kept (`cells[offsets[k]..offsets[k + 1]]`): a
     /// point's few hundred samples, read every iteration.
     Stored { cells: &'a [(u32, f32)], offsets: &'a [usize], corners: &'a [[(u32, f32); 4]] },
-    /// Computed again at every read from each sample's half vector and
-    /// kernel width: a pool's millions of samples would hold gigabytes of
-    /// cells.
-    Computed { kg: &'a KernelGrid, at: &'a [KernelAt] },
+    /// The first `corners.len()` samples' kept as `Stored` keeps them, the
+    /// rest computed again at every read from each sample's half vector
+    /// and kernel width: a pool's millions of samples would hold gigabytes
+    /// of cells.
+    Computed {
+        cells: &'a [(u32, f32)],
+        offsets: &'a [usize],
+        corners: &'a [[(u32, f32); 4]],
+        kg: &'a KernelGrid,
+        at: &'a [KernelAt],
+    },
 }
 
 impl Kernels<'_> {
@@ -466,7 +473,10 @@ impl Kernels<'_> {
     pub(crate) fn get<'s>(&'s self, k: usize, scratch: &'s mut Vec<(u32, f32)>) -> ([(u32, f32); 4], &'s [(u32, f32)]) {
         match self {
             Kernels::Stored { cells, offsets, corners: c } => (c[k], &cells[offsets[k]..offsets[k + 1]]),
-            Kernels::Computed { kg, at } => {
+            Kernels::Computed { cells, offsets, corners: c, .. } if k < c.len() => {
+                (c[k], &cells[offsets[k]..offsets[k + 1]])
+            }
+            Kernels::Computed { kg, at, .. } => {
                 scratch.clear();
                 (kernel_at(kg, &at[k], scratch), scratch.as_slice())
             }
@@ -1047,6 +1057,63 @@ mod kernel_tests {
             }
             // The kernels reached cells: the comparison compared something.
             assert!(cells > 60_000, "{cells} cells");
+        }
+    }
+
+    #[test]
+    fn kernels_kept_for_some_samples_read_and_sum_as_kernels_kept_for_all() {
+        // A pool's store stops part-way (`Kernels::Computed` with a
+        // prefix): every sample's kernel, and the sums over them, must be
+        // the same bit for bit wherever the store stops.
+        let grid = NdfGrid::DEFAULT;
+        let kg = KernelGrid::new(grid);
+        let mut state = 777u64;
+        let mut rnd = || {
+            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            ((state >> 40) as f32) / (1u64 << 24) as f32
+        };
+        let at: Vec<KernelAt> = (0..20_000)
+            .map(|_| {
+                let h = brdf::frame::spherical(rnd() * 1.2, rnd() * std::f32::consts::TAU);
+                KernelAt::new(h, 0.01 + 0.05 * rnd())
+            })
+            .collect();
+        let (mut cells, mut offsets, mut corners) = (Vec::new(), vec![0], Vec::new());
+        for k in &at {
+            corners.push(kernel_at(&kg, k, &mut cells));
+            offsets.push(cells.len());
+        }
+        let all = Kernels::Stored { cells: &cells, offsets: &offsets, corners: &corners };
+        let bits = |v: &[(u32, f32)]| v.iter().map(|&(c, w)| (c, w.to_bits())).collect::<Vec<_>>();
+        let values: Vec<f32> = (0..at.len()).map(|_| rnd()).collect();
+        let sum = |kernels: &Kernels| {
+            kernels.sums(grid, at.len(), |k, scratch, [a, b]| {
+                for &(c, w) in kernels.get(k, scratch).1 {
+                    a[c as usize] += w as f64;
+                    b[c as usize] += (w * values[k]) as f64;
+                }
+            })
+        };
+        let whole = sum(&all);
+        assert!(whole[0].iter().filter(|&&w| w > 0.0).count() > grid.len() / 2, "the samples reach the table");
+        for kept in [0, 1, 8_191, 8_192, 12_345, at.len()] {
+            let part = Kernels::Computed {
+                cells: &cells[..offsets[kept]],
+                offsets: &offsets[..=kept],
+                corners: &corners[..kept],
+                kg: &kg,
+                at: &at,
+            };
+            let (mut s1, mut s2) = (Vec::new(), Vec::new());
+            for k in 0..at.len() {
+                let (c1, k1) = all.get(k, &mut s1);
+                let (c2, k2) = part.get(k, &mut s2);
+                assert_eq!((bits(&c1), bits(k1)), (bits(&c2), bits(k2)), "sample {k}, {kept} kept");
+            }
+            let partly = sum(&part);
+            for (x, y) in whole.iter().flatten().zip(partly.iter().flatten()) {
+                assert_eq!(x.to_bits(), y.to_bits(), "{kept} kept");
+            }
         }
     }
 }

@@ -371,23 +371,26 @@ fn cell_angle(grid: brdf::ndf::NdfGrid, k: &KernelAt) -> f32 {
 }
 
 /// Most kernel cells an estimate keeps (8 bytes each): a larger pool's
-/// kernels are computed again at every pass instead.
+/// kernels past the first this many cells are computed again at every
+/// pass instead.
 const MAX_STORED_CELLS: usize = 1 << 24;
 
-/// Every sample's kernel cells, offsets and corners, computed once; `None`
-/// when they would be more than [`MAX_STORED_CELLS`].
+/// Every sample's kernel cells, offsets and corners, computed once, and
+/// whether that is every sample: the store stops at the sample that would
+/// take it past [`MAX_STORED_CELLS`], and holds those before it.
 #[allow(clippy::type_complexity)]
-fn store_kernels(kg: &KernelGrid, at: &[KernelAt]) -> Option<(Vec<(u32, f32)>, Vec<usize>, Vec<[(u32, f32); 4]>)> {
+fn store_kernels(kg: &KernelGrid, at: &[KernelAt]) -> (Vec<(u32, f32)>, Vec<usize>, Vec<[(u32, f32); 4]>, bool) {
     let (mut cells, mut offsets, mut corners) = (Vec::new(), vec![0], Vec::with_capacity(at.len()));
     for k in at {
         let c = kernel_at(kg, k, &mut cells);
         if cells.len() > MAX_STORED_CELLS {
-            return None;
+            cells.truncate(offsets[offsets.len() - 1]);
+            return (cells, offsets, corners, false);
         }
         offsets.push(cells.len());
         corners.push(c);
     }
-    Some((cells, offsets, corners))
+    (cells, offsets, corners, true)
 }
 
 /// One cluster's pooled table and what it explains.
@@ -604,8 +607,8 @@ fn estimate_turned(
         .collect();
     let stored = store_kernels(&kg, &at);
     let kernels = match &stored {
-        Some((cells, offsets, corners)) => Kernels::Stored { cells, offsets, corners },
-        None => Kernels::Computed { kg: &kg, at: &at },
+        (cells, offsets, corners, true) => Kernels::Stored { cells, offsets, corners },
+        (cells, offsets, corners, false) => Kernels::Computed { cells, offsets, corners, kg: &kg, at: &at },
     };
     let [sum_k, _] = kernels.sums(grid, at.len(), |k, scratch, [sum_k, _]| {
         for &(c, w) in kernels.get(k, scratch).1 {
