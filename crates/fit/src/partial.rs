@@ -420,10 +420,10 @@ pub(crate) enum Kernels<'a> {
     /// Computed once and kept (`cells[offsets[k]..offsets[k + 1]]`): a
     /// point's few hundred samples, read every iteration.
     Stored { cells: &'a [(u32, f32)], offsets: &'a [usize], corners: &'a [[(u32, f32); 4]] },
-    /// The first `corners.len()` samples' kept as `Stored` keeps them, the
-    /// rest computed again at every read from each sample's half vector
-    /// and kernel width: a pool's millions of samples would hold gigabytes
-    /// of cells.
+    /// Kept as `Stored` keeps them for the first `corners.len()` samples
+    /// only, the rest computed again at every read from each sample's half
+    /// vector and kernel width: a pool's millions of samples would hold
+    /// gigabytes of cells.
     Computed {
         cells: &'a [(u32, f32)],
         offsets: &'a [usize],
