@@ -375,22 +375,22 @@ fn cell_angle(grid: brdf::ndf::NdfGrid, k: &KernelAt) -> f32 {
 /// pass instead.
 const MAX_STORED_CELLS: usize = 1 << 24;
 
-/// Every sample's kernel cells, offsets and corners, computed once, and
-/// whether that is every sample: the store stops at the sample that would
-/// take it past [`MAX_STORED_CELLS`], and holds those before it.
+/// The samples' kernel cells, offsets and corners, computed once: every
+/// sample's, or those before the sample that would take the store past
+/// [`MAX_STORED_CELLS`] (fewer corners than samples).
 #[allow(clippy::type_complexity)]
-fn store_kernels(kg: &KernelGrid, at: &[KernelAt]) -> (Vec<(u32, f32)>, Vec<usize>, Vec<[(u32, f32); 4]>, bool) {
+fn store_kernels(kg: &KernelGrid, at: &[KernelAt]) -> (Vec<(u32, f32)>, Vec<usize>, Vec<[(u32, f32); 4]>) {
     let (mut cells, mut offsets, mut corners) = (Vec::new(), vec![0], Vec::with_capacity(at.len()));
     for k in at {
         let c = kernel_at(kg, k, &mut cells);
         if cells.len() > MAX_STORED_CELLS {
             cells.truncate(offsets[offsets.len() - 1]);
-            return (cells, offsets, corners, false);
+            break;
         }
         offsets.push(cells.len());
         corners.push(c);
     }
-    (cells, offsets, corners, true)
+    (cells, offsets, corners)
 }
 
 /// One cluster's pooled table and what it explains.
@@ -606,9 +606,11 @@ fn estimate_turned(
         })
         .collect();
     let stored = store_kernels(&kg, &at);
-    let kernels = match &stored {
-        (cells, offsets, corners, true) => Kernels::Stored { cells, offsets, corners },
-        (cells, offsets, corners, false) => Kernels::Computed { cells, offsets, corners, kg: &kg, at: &at },
+    let (kept, offsets, corners) = (&stored.0[..], &stored.1[..], &stored.2[..]);
+    let kernels = if corners.len() == at.len() {
+        Kernels::Stored { cells: kept, offsets, corners }
+    } else {
+        Kernels::Computed { cells: kept, offsets, corners, kg: &kg, at: &at }
     };
     let [sum_k, _] = kernels.sums(grid, at.len(), |k, scratch, [sum_k, _]| {
         for &(c, w) in kernels.get(k, scratch).1 {
