@@ -149,9 +149,7 @@ impl AnalyticModel {
                 lobes: vec![LafortuneLobe { cx: s[0], cy: s[1], cz: s[2], n: s[3], rho: ks }],
             }),
             AnalyticModel::CookTorrance => Arc::new(CookTorrance { kd, ks, m: s[0], eta: eta(s[1]) }),
-            AnalyticModel::AshikhminShirley => {
-                Arc::new(AshikhminShirley { rd: kd, rs: ks, nu: s[0], nv: s[1], angle_rad: s[2] })
-            }
+            AnalyticModel::AshikhminShirley => Arc::new(AshikhminShirley::from_params(p)?),
             AnalyticModel::GgxAniso => Arc::new(Microfacet {
                 kd,
                 ks,

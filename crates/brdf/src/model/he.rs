@@ -28,6 +28,7 @@
 
 use std::f32::consts::FRAC_1_PI;
 use std::f64::consts::PI as PI64;
+use std::sync::OnceLock;
 
 use glam::Vec3;
 use serde::{Deserialize, Serialize};
@@ -50,6 +51,24 @@ fn rough_limit(g: f64, e: f64) -> f64 {
 /// rough-surface limit with its second-order correction is within 0.2% of it (checked in the tests at the
 /// threshold), so the limit is used.
 pub const ROUGH_LIMIT_G: f64 = 200.0;
+
+/// The series' logarithms of its term `m`: `ln(m!)` and `ln(m)`.
+fn series_log(m: usize) -> (f64, f64) {
+    let mf = m as f64;
+    (libm::lgamma(mf + 1.0), mf.ln())
+}
+
+/// [`series_log`] for every term the series takes below
+/// [`ROUGH_LIMIT_G`] (`g + 12 sqrt(g) + 30`, at most 400), found once: the
+/// same values, a table read instead of a log-gamma and a logarithm per
+/// term of every evaluation.
+fn series_logs() -> &'static [(f64, f64)] {
+    static LOGS: OnceLock<Vec<(f64, f64)>> = OnceLock::new();
+    LOGS.get_or_init(|| {
+        let g = ROUGH_LIMIT_G;
+        (0..=(g + 12.0 * g.sqrt() + 30.0).ceil() as usize).map(series_log).collect()
+    })
+}
 
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct He {
@@ -130,10 +149,12 @@ impl He {
         }
         let ln_g = g.ln();
         let m_max = (g + 12.0 * g.sqrt() + 30.0).ceil() as usize;
+        let logs = series_logs();
         let mut sum = 0.0;
         for m in 1..=m_max {
             let mf = m as f64;
-            let ln_term = -g + mf * ln_g - libm::lgamma(mf + 1.0) - mf.ln() - e_base / mf;
+            let (ln_factorial, ln_m) = logs.get(m).copied().unwrap_or_else(|| series_log(m));
+            let ln_term = -g + mf * ln_g - ln_factorial - ln_m - e_base / mf;
             let term = ln_term.exp();
             sum += term;
             if mf > g && term < 1e-14 * sum {
@@ -197,6 +218,21 @@ mod tests {
             let limit = rough_limit(g, e_base);
             assert!((series - limit).abs() / series < 0.002, "e {e_base}: {series} vs {limit}");
         }
+    }
+
+    /// The table holds every term the series can take below the rough
+    /// limit, each the logarithms found directly.
+    #[test]
+    fn the_series_logarithms_are_tabled_for_every_term_below_the_rough_limit() {
+        let logs = series_logs();
+        for g in [1e-6, 0.5, 7.0, 60.0, ROUGH_LIMIT_G] {
+            assert!((g + 12.0 * g.sqrt() + 30.0).ceil() as usize <= logs.len() - 1, "g {g}");
+        }
+        for (m, &l) in logs.iter().enumerate() {
+            assert_eq!(l, series_log(m), "term {m}");
+        }
+        assert_eq!(logs[1], (0.0, 0.0));
+        assert!((logs[10].0 - 3_628_800f64.ln()).abs() < 1e-12);
     }
 
     #[test]

@@ -31,7 +31,7 @@ mod microfacet;
 mod phong;
 mod ward;
 
-pub use ashikhmin_shirley::AshikhminShirley;
+pub use ashikhmin_shirley::{AsGeometry, AshikhminShirley};
 pub use cook_torrance::CookTorrance;
 pub use he::He;
 pub use lafortune::{Lafortune, LafortuneLobe};

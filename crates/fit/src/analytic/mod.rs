@@ -28,6 +28,7 @@ pub mod shape;
 
 use std::time::Instant;
 
+use brdf::model::{AsGeometry, AshikhminShirley};
 use brdf::params::AnalyticModel;
 use glam::Vec3;
 use levenberg_marquardt::LevenbergMarquardt;
@@ -150,7 +151,12 @@ pub fn evidence(
 }
 
 fn rms_residual(samples: &[Sample], o: Vec3, f: impl Fn(Vec3, Vec3) -> f32) -> f32 {
-    let ss: f64 = samples.iter().map(|x| (((f(x.i, o) - lum(x.rho)) * x.i.z) as f64).powi(2)).sum();
+    rms_residual_by(samples, |j| f(samples[j].i, o))
+}
+
+/// [`rms_residual`] with the model's luminance given per sample index.
+fn rms_residual_by(samples: &[Sample], f: impl Fn(usize) -> f32) -> f32 {
+    let ss: f64 = samples.iter().enumerate().map(|(j, x)| (((f(j) - lum(x.rho)) * x.i.z) as f64).powi(2)).sum();
     (ss / samples.len().max(1) as f64).sqrt() as f32
 }
 
@@ -243,38 +249,70 @@ fn solve_amplitudes(bd: &[f32], bs: &[f32], samples: &[Sample], max_ks: f64) -> 
     (kd, ks)
 }
 
-/// Fit one point's amplitudes for a model with a given shape. Models whose
-/// diffuse or specular term is not linear in its amplitude (Ashikhmin-
-/// Shirley's `(1 - Rs)` factor and Schlick's Fresnel of `Rs`) are solved by
-/// a fixed-point iteration on the amplitude.
+/// The specular amplitude the amplitude fits start from.
+const AMPLITUDE_START: f32 = 0.05;
+
+/// Fit one point's amplitudes for a model with a given shape, in closed
+/// form; Ashikhmin-Shirley's by [`as_amplitudes`].
 fn point_amplitudes(model: AnalyticModel, shape: &[f32], samples: &[Sample], o: Vec3) -> (Vec<f32>, Option<f32>) {
-    let nonlinear = model == AnalyticModel::AshikhminShirley;
-    let mut ks_prev = [0.05f32; 3];
+    if model == AnalyticModel::AshikhminShirley {
+        let Some((params, geometry)) = as_amplitudes(shape, samples, o) else {
+            return (vec![0.0; model.n_params()], None);
+        };
+        let residual = AshikhminShirley::from_params(&params)
+            .map(|m| rms_residual_by(samples, |j| lum(m.eval_geometry(geometry[j].as_ref()).to_array())));
+        return (params, residual);
+    }
+    // The specular basis per unit amplitude, from the lobe at a start
+    // amplitude.
+    let k = lum([AMPLITUDE_START; 3]).max(crate::tol::MIN_KS_START);
+    let mut p = vec![0.0f32, 0.0, 0.0, k, k, k];
+    p.extend_from_slice(shape);
+    let Some(sm) = model.build(&p) else { return (vec![0.0; model.n_params()], None) };
+    let bs: Vec<f32> = samples.iter().map(|x| sm.eval(x.i, o).x / k).collect();
+    let bd = vec![std::f32::consts::FRAC_1_PI; samples.len()];
+    let (kd, ks) = solve_amplitudes(&bd, &bs, samples, max_ks(model, shape));
+    let mut params = Vec::with_capacity(model.n_params());
+    params.extend_from_slice(&kd);
+    params.extend_from_slice(&ks);
+    params.extend_from_slice(shape);
+    let residual = model.build(&params).map(|m| rms_residual(samples, o, |i, o| lum(m.eval(i, o).to_array())));
+    (params, residual)
+}
+
+/// Ashikhmin-Shirley's amplitudes at one point, with each sample's
+/// [`AshikhminShirley::geometry`] under `shape`: its diffuse term carries
+/// `(1 - Rs)` and its specular term Schlick's Fresnel of `Rs`, neither
+/// linear in the amplitude, so they are solved by a fixed-point iteration
+/// on it (four steps), each the closed-form solve with the bases at the
+/// last step's `Rs`. The geometry does not change with the amplitudes: it
+/// is found once, not at every step. `None` if `shape` is not the model's.
+fn as_amplitudes(shape: &[f32], samples: &[Sample], o: Vec3) -> Option<(Vec<f32>, Vec<Option<AsGeometry>>)> {
+    let model = AnalyticModel::AshikhminShirley;
+    let with = |rd: f32, rs: f32| {
+        let mut p = vec![rd, rd, rd, rs, rs, rs];
+        p.extend_from_slice(shape);
+        AshikhminShirley::from_params(&p)
+    };
+    let geometry: Vec<Option<AsGeometry>> = {
+        let m = with(0.0, 1.0)?;
+        samples.iter().map(|x| m.geometry(x.i, o)).collect()
+    };
+    let mut ks_prev = [AMPLITUDE_START; 3];
     let mut kd = [0.0f32; 3];
     let mut ks = [0.0f32; 3];
     let mut bd = vec![0.0f32; samples.len()];
     let mut bs = vec![0.0f32; samples.len()];
     let mut k = 1.0;
-    for _ in 0..if nonlinear { 4 } else { 1 } {
+    for _ in 0..4 {
         k = lum(ks_prev).max(crate::tol::MIN_KS_START);
-        let mut p = vec![0.0f32, 0.0, 0.0, k, k, k];
-        p.extend_from_slice(shape);
-        let Some(sm) = model.build(&p) else { return (vec![0.0; model.n_params()], None) };
-        let dm = if nonlinear {
-            p[0] = 1.0;
-            p[1] = 1.0;
-            p[2] = 1.0;
-            model.build(&p)
-        } else {
-            None
-        };
-        for (j, x) in samples.iter().enumerate() {
-            let s = sm.eval(x.i, o).x;
+        // The specular basis per unit amplitude, and the diffuse one as the
+        // model with unit `rd` less its specular term.
+        let (sm, dm) = (with(0.0, k)?, with(1.0, k)?);
+        for (j, g) in geometry.iter().enumerate() {
+            let s = sm.eval_geometry(g.as_ref()).x;
             bs[j] = s / k;
-            bd[j] = match &dm {
-                Some(dm) => dm.eval(x.i, o).x - s,
-                None => std::f32::consts::FRAC_1_PI,
-            };
+            bd[j] = dm.eval_geometry(g.as_ref()).x - s;
         }
         (kd, ks) = solve_amplitudes(&bd, &bs, samples, max_ks(model, shape));
         ks_prev = ks;
@@ -283,16 +321,13 @@ fn point_amplitudes(model: AnalyticModel, shape: &[f32], samples: &[Sample], o: 
     params.extend_from_slice(&kd);
     params.extend_from_slice(&ks);
     params.extend_from_slice(shape);
-    // Ashikhmin-Shirley's diffuse term is `rd (1 - Rs)` times a shape: the
-    // basis above carried `(1 - k)` with the luminance `k` of `Rs`, so the
-    // solved coefficient of channel c is `rd_c (1 - Rs_c) / (1 - k)`.
-    if nonlinear {
-        for c in 0..3 {
-            params[c] *= (1.0 - k) / (1.0 - params[3 + c]).max(0.05);
-        }
+    // The diffuse term is `rd (1 - Rs)` times a shape: the basis above
+    // carried `(1 - k)` with the luminance `k` of `Rs`, so the solved
+    // coefficient of channel c is `rd_c (1 - Rs_c) / (1 - k)`.
+    for c in 0..3 {
+        params[c] *= (1.0 - k) / (1.0 - params[3 + c]).max(0.05);
     }
-    let residual = model.build(&params).map(|m| rms_residual(samples, o, |i, o| lum(m.eval(i, o).to_array())));
-    (params, residual)
+    Some((params, geometry))
 }
 
 /// Index of a model's lobe orientation among its shape parameters, for the
@@ -433,12 +468,16 @@ impl ShapeProblem<'_> {
         let linear = self.model.build(&p);
         for &(samples, o) in &self.points {
             if self.model == AnalyticModel::AshikhminShirley {
-                // Amplitudes by fixed-point iteration (see `point_amplitudes`).
-                let (params, _) = point_amplitudes(self.model, &shape, samples, o);
-                match self.model.build(&params) {
-                    Some(m) => {
-                        r.extend(samples.iter().map(|x| ((lum(m.eval(x.i, o).to_array()) - lum(x.rho)) * x.i.z) as f64))
-                    }
+                // Amplitudes by fixed-point iteration ([`as_amplitudes`]).
+                let fitted = as_amplitudes(&shape, samples, o)
+                    .and_then(|(params, geometry)| Some((AshikhminShirley::from_params(&params)?, geometry)));
+                match fitted {
+                    Some((m, geometry)) => r.extend(
+                        samples
+                            .iter()
+                            .zip(&geometry)
+                            .map(|(x, g)| ((lum(m.eval_geometry(g.as_ref()).to_array()) - lum(x.rho)) * x.i.z) as f64),
+                    ),
                     None => r.extend(samples.iter().map(|_| 1.0)),
                 }
             } else if let Some(lm) = &linear {
@@ -741,6 +780,43 @@ mod tests {
         // metal's reflectance is above 0.91 in every channel.
         assert!(p[3..6].iter().all(|&ks| ks > 0.91), "ks {:?} (eta {})", &p[3..6], p[9]);
         assert!(p[0..3].iter().all(|&kd| kd < 0.02), "kd {:?}", &p[0..3]);
+    }
+
+    /// [`as_amplitudes`], which evaluates the model through each sample's
+    /// geometry found once, gives the amplitudes, to the bit, of the
+    /// fixed-point iteration written with the model's own `eval` at every
+    /// step.
+    #[test]
+    fn ashikhmin_shirleys_amplitudes_are_those_of_its_own_evaluation() {
+        let model = AnalyticModel::AshikhminShirley;
+        let o = view_45();
+        let truth = AshikhminShirley {
+            rd: Vec3::new(0.4, 0.3, 0.2),
+            rs: Vec3::splat(0.08),
+            nu: 60.0,
+            nv: 20.0,
+            angle_rad: 0.3,
+        };
+        let samples = lit_around_mirror(&truth, o, 6, 0.05);
+        let shape = [45.0f32, 25.0, 0.25];
+        let mut ks_prev = [AMPLITUDE_START; 3];
+        let (mut kd, mut ks, mut k) = ([0.0f32; 3], [0.0f32; 3], 1.0);
+        for _ in 0..4 {
+            k = lum(ks_prev).max(crate::tol::MIN_KS_START);
+            let build = |rd: f32| model.build(&[rd, rd, rd, k, k, k, shape[0], shape[1], shape[2]]).unwrap();
+            let (sm, dm) = (build(0.0), build(1.0));
+            let bs: Vec<f32> = samples.iter().map(|x| sm.eval(x.i, o).x / k).collect();
+            let bd: Vec<f32> = samples.iter().map(|x| dm.eval(x.i, o).x - sm.eval(x.i, o).x).collect();
+            (kd, ks) = solve_amplitudes(&bd, &bs, &samples, max_ks(model, &shape));
+            ks_prev = ks;
+        }
+        let rd = [0, 1, 2].map(|c| kd[c] * ((1.0 - k) / (1.0 - ks[c]).max(0.05)));
+        let (params, geometry) = as_amplitudes(&shape, &samples, o).unwrap();
+        assert_eq!(params, [rd[0], rd[1], rd[2], ks[0], ks[1], ks[2], shape[0], shape[1], shape[2]]);
+        assert_eq!(geometry.len(), samples.len());
+        let m = model.build(&params).unwrap();
+        let direct = rms_residual(&samples, o, |i, o| lum(m.eval(i, o).to_array()));
+        assert_eq!(point_amplitudes(model, &shape, &samples, o).1, Some(direct));
     }
 
     #[test]
