@@ -58,16 +58,19 @@ fn series_log(m: usize) -> (f64, f64) {
     (libm::lgamma(mf + 1.0), mf.ln())
 }
 
+/// The most terms the series sums at `g` (it stops earlier once they no
+/// longer count).
+fn series_terms(g: f64) -> usize {
+    (g + 12.0 * g.sqrt() + 30.0).ceil() as usize
+}
+
 /// [`series_log`] for every term the series takes below
-/// [`ROUGH_LIMIT_G`] (`g + 12 sqrt(g) + 30`, at most 400), found once: the
-/// same values, a table read instead of a log-gamma and a logarithm per
-/// term of every evaluation.
+/// [`ROUGH_LIMIT_G`] ([`series_terms`], at most 400), found once: the same
+/// values, a table read instead of a log-gamma and a logarithm per term of
+/// every evaluation.
 fn series_logs() -> &'static [(f64, f64)] {
     static LOGS: OnceLock<Vec<(f64, f64)>> = OnceLock::new();
-    LOGS.get_or_init(|| {
-        let g = ROUGH_LIMIT_G;
-        (0..=(g + 12.0 * g.sqrt() + 30.0).ceil() as usize).map(series_log).collect()
-    })
+    LOGS.get_or_init(|| (0..=series_terms(ROUGH_LIMIT_G)).map(series_log).collect())
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -148,7 +151,7 @@ impl He {
             return rough_limit(g, e_base);
         }
         let ln_g = g.ln();
-        let m_max = (g + 12.0 * g.sqrt() + 30.0).ceil() as usize;
+        let m_max = series_terms(g);
         let logs = series_logs();
         let mut sum = 0.0;
         for m in 1..=m_max {
@@ -226,7 +229,7 @@ mod tests {
     fn the_series_logarithms_are_tabled_for_every_term_below_the_rough_limit() {
         let logs = series_logs();
         for g in [1e-6, 0.5, 7.0, 60.0, ROUGH_LIMIT_G] {
-            assert!((g + 12.0 * g.sqrt() + 30.0).ceil() as usize <= logs.len() - 1, "g {g}");
+            assert!(series_terms(g) < logs.len(), "g {g}");
         }
         for (m, &l) in logs.iter().enumerate() {
             assert_eq!(l, series_log(m), "term {m}");
