@@ -221,6 +221,9 @@ pub fn pool(
         return PoolStats::default();
     }
     ctx.progress.begin(crate::FitStage::Pooling, 2 * eligible.len() as u64);
+    // The stage's steps' times, in the debug log (`RUST_LOG=fit=debug`).
+    let start = std::time::Instant::now();
+    let elapsed = || start.elapsed().as_secs_f64();
     let maps_ref = &*maps;
     let mut members: Vec<Member> = eligible
         .par_iter()
@@ -229,7 +232,9 @@ pub fn pool(
             Member::new(p, gather(ctx, store, p, settings), maps_ref, op, &own, pool.turn)
         })
         .collect();
+    tracing::debug!("pooling: {} members' samples gathered at {:.2} s", members.len(), elapsed());
     let root = if pool.turn { turning_pays(settings, op, &members) } else { None };
+    tracing::debug!("pooling: whether turning pays tested at {:.2} s", elapsed());
     let turn = root.is_some();
     if !turn {
         members.iter_mut().for_each(|m| m.axis = None);
@@ -267,6 +272,7 @@ pub fn pool(
             }
         }
         level = next;
+        tracing::debug!("pooling: a level of splits tested at {:.2} s ({} settled)", elapsed(), settled.len());
     }
     // Each settled cluster's table on all its points (a cluster too small
     // to pool, or without a table, pools nothing).
@@ -291,6 +297,7 @@ pub fn pool(
             est.map(|e| (choose(maps_ref, op, &members, cluster, &e, observed, turned), turned))
         })
         .collect();
+    tracing::debug!("pooling: {} clusters estimated and chosen at {:.2} s", settled.len(), elapsed());
     stats.clusters = chosen.iter().filter(|c| c.is_some()).count();
     stats.turned_clusters = chosen.iter().filter(|c| c.as_ref().is_some_and(|c| c.1)).count();
     for (p, table, k_s) in chosen.into_iter().flatten().flat_map(|c| c.0) {
@@ -391,6 +398,28 @@ fn store_kernels(kg: &KernelGrid, at: &[KernelAt]) -> (Vec<(u32, f32)>, Vec<usiz
         corners.push(c);
     }
     (cells, offsets, corners)
+}
+
+/// `f(i, k)` of every member `i`'s every sample `k`, in order, computed in
+/// parallel (collected, or unzipped, straight into place); `starts` holds
+/// where each member's samples start, `n` is their total.
+fn per_sample<'a, T: Send>(
+    starts: &'a [usize],
+    n: usize,
+    f: impl Fn(usize, usize) -> T + Sync + Send + 'a,
+) -> impl IndexedParallelIterator<Item = T> + 'a {
+    (0..n).into_par_iter().with_min_len(1024).map_init(
+        || 0usize,
+        move |member, s| {
+            // A task takes consecutive samples: its member changes
+            // rarely, and is searched for only then.
+            let end = |i: usize| starts.get(i + 1).copied().unwrap_or(n);
+            if s < starts[*member] || s >= end(*member) {
+                *member = starts.partition_point(|&start| start <= s) - 1;
+            }
+            f(*member, s - starts[*member])
+        },
+    )
 }
 
 /// One cluster's pooled table and what it explains.
@@ -580,22 +609,6 @@ fn estimate_turned(
         Some(axis) => cluster.iter().map(|&j| members[j].axis.map_or(0.0, |a| axis_turn(a, axis))).collect(),
         None => vec![0.0; cluster.len()],
     });
-    let at: Vec<KernelAt> = cluster
-        .par_iter()
-        .zip(&turns)
-        .flat_map_iter(|(&j, &turn)| {
-            let turn = Unturn::new(turn);
-            members[j].samples.iter().map(move |x| {
-                // The turned half vector's angles, once for the kernel, the
-                // cell size and every round's fit.
-                let mut k = KernelAt::new(turn.apply(x.h), 0.0);
-                k.r = (x.kernel_rad * shrink)
-                    .max(MIN_KERNEL_CELLS * cell_angle(grid, &k))
-                    .max(crate::tol::MIN_KERNEL_RAD);
-                k
-            })
-        })
-        .collect();
     // Where each member's samples start in `at`.
     let starts: Vec<usize> = cluster
         .iter()
@@ -605,6 +618,16 @@ fn estimate_turned(
             Some(start)
         })
         .collect();
+    let n = cluster.iter().map(|&j| members[j].samples.len()).sum();
+    let at: Vec<KernelAt> = per_sample(&starts, n, |i, k| {
+        let x = &members[cluster[i]].samples[k];
+        // The turned half vector's angles, once for the kernel, the cell
+        // size and every round's fit.
+        let mut k = KernelAt::new(Unturn::new(turns[i]).apply(x.h), 0.0);
+        k.r = (x.kernel_rad * shrink).max(MIN_KERNEL_CELLS * cell_angle(grid, &k)).max(crate::tol::MIN_KERNEL_RAD);
+        k
+    })
+    .collect();
     let stored = store_kernels(&kg, &at);
     let (kept, offsets, corners) = (&stored.0[..], &stored.1[..], &stored.2[..]);
     let kernels = if corners.len() == at.len() {
@@ -641,20 +664,15 @@ fn estimate_turned(
     let layout = SplatLayout { grid, kernels, confidence: &confidence, covered: &covered };
     for _ in 0..ROUNDS {
         // Each sample's NDF value and weight (0 for one that is not used).
-        let (d_all, weight): (Vec<f32>, Vec<f64>) = cluster
-            .par_iter()
-            .zip(&k_s)
-            .zip(&masking)
-            .flat_map_iter(|((&j, &k_s), masking)| {
-                members[j].samples.iter().zip(masking).map(move |(x, &masking)| {
-                    let g = masking / (x.fresnel * k_s);
-                    let d = x.spec * g;
-                    let var_d = (x.var * g * g) as f64;
-                    let usable = d.is_finite() && var_d > 0.0 && var_d.is_finite();
-                    (d, if usable { 1.0 / var_d } else { 0.0 })
-                })
-            })
-            .unzip();
+        let (d_all, weight): (Vec<f32>, Vec<f64>) = per_sample(&starts, at.len(), |i, k| {
+            let x = &members[cluster[i]].samples[k];
+            let g = masking[i][k] / (x.fresnel * k_s[i]);
+            let d = x.spec * g;
+            let var_d = (x.var * g * g) as f64;
+            let usable = d.is_finite() && var_d > 0.0 && var_d.is_finite();
+            (d, if usable { 1.0 / var_d } else { 0.0 })
+        })
+        .unzip();
         let [sum_w, sum_wd] = layout.kernels.sums(grid, d_all.len(), |k, scratch, [sum_w, sum_wd]| {
             let (d, wk) = (d_all[k] as f64, weight[k]);
             if wk > 0.0 {
@@ -1006,6 +1024,21 @@ mod tests {
     fn split_taken(one: &Estimate, a: &Estimate, b: &Estimate) -> bool {
         let c = overdispersion(&[a, b]);
         a.aic(c) + b.aic(c) < one.aic(c)
+    }
+
+    /// Every member's every sample, in order, however the work is split:
+    /// members of no samples, of one, and of more than a task takes.
+    #[test]
+    fn per_sample_visits_each_members_samples_in_order() {
+        let lens = [0usize, 3, 0, 0, 5000, 1, 2500, 0];
+        let starts: Vec<usize> = lens.iter().scan(0, |n, &l| Some(std::mem::replace(n, *n + l))).collect();
+        let n: usize = lens.iter().sum();
+        let got: Vec<(usize, usize)> = per_sample(&starts, n, |i, k| (i, k)).collect();
+        let want: Vec<(usize, usize)> =
+            lens.iter().enumerate().flat_map(|(i, &l)| (0..l).map(move |k| (i, k))).collect();
+        assert_eq!(got, want);
+        let (a, b): (Vec<usize>, Vec<usize>) = per_sample(&starts, n, |i, k| (i, k)).unzip();
+        assert_eq!(a.iter().zip(&b).map(|(&i, &k)| (i, k)).collect::<Vec<_>>(), want);
     }
 
     fn lobe(angle: f32) -> NdfTable {

@@ -121,11 +121,14 @@ impl MaskingOperator {
         let mut spectra = vec![Complex32::new(0.0, 0.0); nt * nf];
         let mut row = vec![0.0f32; np];
         let mut active = vec![false; nt];
+        // One scratch buffer for every transform of the call (`process`
+        // would allocate one per transform; the results are the same).
+        let mut scratch = vec![Complex32::new(0.0, 0.0); self.r2c.get_scratch_len().max(self.c2r.get_scratch_len())];
         for t in 0..nt {
             row.copy_from_slice(&table.values()[t * np..(t + 1) * np]);
             active[t] = row.iter().any(|&v| v != 0.0);
             if active[t] {
-                let _ = self.r2c.process(&mut row, &mut spectra[t * nf..(t + 1) * nf]);
+                let _ = self.r2c.process_with_scratch(&mut row, &mut spectra[t * nf..(t + 1) * nf], &mut scratch);
             }
         }
         let mut sigma = vec![0.0f32; self.n_theta_k * np];
@@ -148,7 +151,7 @@ impl MaskingOperator {
             if np % 2 == 0 {
                 acc[nf - 1].im = 0.0;
             }
-            let _ = self.c2r.process(&mut acc, &mut out);
+            let _ = self.c2r.process_with_scratch(&mut acc, &mut out, &mut scratch);
             let scale = 1.0 / np as f32;
             for q in 0..np {
                 sigma[j * np + q] = (out[q] * scale).max(0.0);

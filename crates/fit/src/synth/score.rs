@@ -160,6 +160,9 @@ pub struct Match {
 pub struct ScoreScratch {
     acc: Vec<Vec<Complex32>>,
     out: Vec<Vec<f32>>,
+    /// The inverse transform's own scratch (`process` would allocate it
+    /// at every call).
+    fft: Vec<Complex32>,
 }
 
 /// Score every rotation of candidate `c` against query `q`; return the
@@ -176,6 +179,7 @@ pub fn best_rotation(
     if scratch.acc.len() != 5 || scratch.acc[0].len() != mf {
         scratch.acc = (0..5).map(|_| vec![Complex32::new(0.0, 0.0); mf]).collect();
         scratch.out = (0..5).map(|_| vec![0.0; m]).collect();
+        scratch.fft = vec![Complex32::new(0.0, 0.0); plans.c2r.get_scratch_len()];
     }
     // (query spectrum, candidate spectrum) of A, B, C, N, G.
     let pairs = [(0, 0), (1, 1), (2, 2), (2, 1), (3, 1)];
@@ -193,7 +197,7 @@ pub fn best_rotation(
         if m % 2 == 0 {
             acc[mf - 1].im = 0.0;
         }
-        let _ = plans.c2r.process(acc, &mut scratch.out[k]);
+        let _ = plans.c2r.process_with_scratch(acc, &mut scratch.out[k], &mut scratch.fft);
     }
     // The inverse FFT of n_phi bins zero-padded to m is scaled by 1/n_phi.
     let norm = 1.0 / plans.grid.n_phi as f32;
