@@ -618,12 +618,13 @@ fn estimate_turned(
             Some(start)
         })
         .collect();
-    let n = cluster.iter().map(|&j| members[j].samples.len()).sum();
-    let at: Vec<KernelAt> = per_sample(&starts, n, |i, k| {
+    let samples = cluster.iter().map(|&j| members[j].samples.len()).sum();
+    let unturns: Vec<Unturn> = turns.iter().map(|&turn| Unturn::new(turn)).collect();
+    let at: Vec<KernelAt> = per_sample(&starts, samples, |i, k| {
         let x = &members[cluster[i]].samples[k];
         // The turned half vector's angles, once for the kernel, the cell
         // size and every round's fit.
-        let mut k = KernelAt::new(Unturn::new(turns[i]).apply(x.h), 0.0);
+        let mut k = KernelAt::new(unturns[i].apply(x.h), 0.0);
         k.r = (x.kernel_rad * shrink).max(MIN_KERNEL_CELLS * cell_angle(grid, &k)).max(crate::tol::MIN_KERNEL_RAD);
         k
     })
@@ -725,7 +726,6 @@ fn estimate_turned(
     // The last round's sums are the final table's: summed in order, the
     // same figure on any threads.
     let chi2 = fits.iter().zip(&k_s).map(|(f, &k)| f.chi2(k)).sum();
-    let samples = cluster.iter().map(|&j| members[j].samples.len()).sum();
     Some(Estimate {
         table,
         chi2,
