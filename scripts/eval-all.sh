@@ -7,7 +7,7 @@
 #   bash scripts/eval-all.sh [--quality Q] [--bin DIR] [--rig FILE]
 #                            [--sim-rig RIG] [--no-geometric-calibration]
 #                            [--hdr N] [--bracket every|clipped] [--reeval]
-#                            [OUT]
+#                            [--subpixels N] [OUT]
 #
 # --rig names a rig file (default the embedded simulated rig; e.g.
 # scripts/rigs/sim-no-patches.toml, the same rig without the reference
@@ -21,6 +21,10 @@
 # (`--hdr 1`: one exposure, the presets' before adaptive brackets).
 # --reeval scores the captures already in OUT again with this build's
 # `refl eval` (no new capture: for a change to the eval alone).
+# --subpixels N renders each pixel as the mean of N x N rays (`refl eval
+# --subpixels`; default one ray, the pixel's centre). With `--reeval` it
+# rescores the same materials, e.g. to see how much of a render error is
+# where the pixel centres fell on sub-pixel detail.
 # The last two columns set the true lobe against the rig: the half-angle of
 # the cone holding half the NDF's projected mass and the spacing of the
 # capture's half vectors nearest its peak, degrees (`lobe_reach` in
@@ -36,6 +40,7 @@ bin=""
 rig=()
 no_geometry=0
 reeval=0
+subpixels=()
 while [ $# -gt 0 ]; do
   case "$1" in
     --quality) quality="$2"; shift 2 ;;
@@ -45,6 +50,7 @@ while [ $# -gt 0 ]; do
     --rig) rig+=(--rig "$(cd "$(dirname "$2")" && pwd)/$(basename "$2")"); shift 2 ;;
     --no-geometric-calibration) no_geometry=1; shift ;;
     --reeval) reeval=1; shift ;;
+    --subpixels) subpixels=(--subpixels "$2"); shift 2 ;;
     *) break ;;
   esac
 done
@@ -101,7 +107,7 @@ scan() { # name [capture args...]
     rm -rf "$dir"
     "$bin/capture" --quality "$quality" --no-daemon --out "$dir" "${rig[@]}" "$@" >/dev/null 2>"$out/$name.log"
   fi
-  "$bin/refl" eval "$dir" --json --px 64 >"$dir/eval.json" 2>>"$out/$name.log"
+  "$bin/refl" eval "$dir" --json --px 64 "${subpixels[@]}" >"$dir/eval.json" 2>>"$out/$name.log"
   row "$name" "$dir"
 }
 

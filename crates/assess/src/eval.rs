@@ -9,7 +9,11 @@
 //!   vectors tilted far toward `+x` were never observed); the fraction of
 //!   pixels whose half vector lies outside the point's observed region is
 //!   reported per condition. `render_rel_rmse = sqrt(sum (model - truth)^2 /
-//!   sum truth^2)` over all pixels and channels of all conditions.
+//!   sum truth^2)` over all pixels and channels of all conditions. Each
+//!   pixel is one ray through its centre unless `render_subpixels` asks for
+//!   the mean of more: a highlight narrower than a pixel, or detail finer
+//!   than the material's points, then counts by its share of the pixel
+//!   instead of by whether a centre fell on it.
 //! - **NDF errors** against the true NDF, the same relative L2 in the
 //!   table's cosine measure, over the observed cells and the whole
 //!   hemisphere, pooled over up to 1,024 points spread over the sample
@@ -181,6 +185,8 @@ pub struct Evaluation {
 #[derive(Clone, Debug)]
 pub struct EvalOptions {
     pub render_px: u32,
+    /// Rays per pixel side in the renders ([`render::render_subpixels`]).
+    pub render_subpixels: u32,
     pub holdout: bool,
     pub max_ndf_points: usize,
     /// Score the NDF errors on observed cells only on the cells that this
@@ -194,7 +200,13 @@ pub struct EvalOptions {
 
 impl Default for EvalOptions {
     fn default() -> Self {
-        Self { render_px: 128, holdout: true, max_ndf_points: 1024, observed_like: None }
+        Self {
+            render_px: 128,
+            render_subpixels: RENDER_SUBPIXELS,
+            holdout: true,
+            max_ndf_points: 1024,
+            observed_like: None,
+        }
     }
 }
 
@@ -439,6 +451,9 @@ fn holdout(dir: &Path, rep: &mut dyn Progress) -> Result<BTreeMap<String, Holdou
 /// Every k-th gantry step is held out.
 pub const HOLDOUT_EVERY: u32 = 8;
 
+/// Rays per pixel side in the evaluation's renders.
+pub const RENDER_SUBPIXELS: u32 = 1;
+
 /// Evaluate a capture directory.
 pub fn evaluate(dir: &Path, opts: &EvalOptions, rep: &mut dyn Progress) -> Result<Evaluation> {
     let info = CaptureDir::read_info(dir)?;
@@ -461,9 +476,14 @@ pub fn evaluate(dir: &Path, opts: &EvalOptions, rep: &mut dyn Progress) -> Resul
         })
         .collect();
     let sample = info.geometry.sample;
+    // A material's renders under every condition.
+    let draw = |m: &dyn SvBrdf| -> Vec<Image> {
+        let scene = |c| scene_for(c, opts.render_px);
+        conds.iter().map(|c| render::render_subpixels(m, &sample, &scene(c), 7, opts.render_subpixels)).collect()
+    };
     let truth_renders: Option<Vec<Image>> = truth.as_ref().map(|t| {
         rep.stage("eval", format!("rendering the ground truth under {} conditions", conds.len()));
-        conds.iter().map(|c| render::render(t.as_ref(), &sample, &scene_for(c, opts.render_px), 7)).collect()
+        draw(t.as_ref())
     });
     let resolved_renders: Option<Vec<Image>> = truth.as_ref().zip(truth_renders.as_ref()).map(|(t, tr)| {
         rep.stage("eval", "rendering the truth as the points measure it (the resolution floor)".to_string());
@@ -473,8 +493,7 @@ pub fn evaluate(dir: &Path, opts: &EvalOptions, rep: &mut dyn Progress) -> Resul
             layout: info.sensor.layout,
             truth: t.clone(),
         };
-        let renders: Vec<Image> =
-            conds.iter().map(|c| render::render(&resolved, &sample, &scene_for(c, opts.render_px), 7)).collect();
+        let renders = draw(&resolved);
         let pairs: Vec<(&Image, &Image)> = renders.iter().zip(tr.iter()).collect();
         ev.render_resolution_floor = render::rel_rmse(&pairs);
         renders
@@ -521,8 +540,7 @@ pub fn evaluate(dir: &Path, opts: &EvalOptions, rep: &mut dyn Progress) -> Resul
             ..ModelScore::default()
         };
         if let Some(tr) = &truth_renders {
-            let renders: Vec<Image> =
-                conds.iter().map(|c| render::render(&view, &sample, &scene_for(c, opts.render_px), 7)).collect();
+            let renders = draw(&view);
             let pairs: Vec<(&Image, &Image)> = renders.iter().zip(tr.iter()).collect();
             score.render_rel_rmse = render::rel_rmse(&pairs);
             if let Some(rr) = &resolved_renders {

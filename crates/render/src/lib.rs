@@ -8,5 +8,5 @@ pub mod render;
 pub mod scene;
 
 pub use output::{rel_rmse, write_exr, write_png, write_sheet};
-pub use render::{Image, render};
+pub use render::{Image, render, render_subpixels};
 pub use scene::{EnvMap, Light, Scene};

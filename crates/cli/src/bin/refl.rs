@@ -53,6 +53,11 @@ enum Cmd {
         /// Render size (pixels per side).
         #[arg(long, default_value_t = 128)]
         px: u32,
+        /// Rays per pixel side: each rendered pixel is the mean of N x N
+        /// rays spread evenly over it (default: the evaluation's own,
+        /// `assess::eval::RENDER_SUBPIXELS`).
+        #[arg(long, value_name = "N")]
+        subpixels: Option<u32>,
         /// Skip the hold-out refit.
         #[arg(long)]
         no_holdout: bool,
@@ -402,7 +407,10 @@ fn main() -> ExitCode {
                 println!("{}", m.display());
                 Ok(())
             }
-            Cmd::Eval { dir, json, px, no_holdout, observed_like } => {
+            Cmd::Eval { dir, json, px, subpixels, no_holdout, observed_like } => {
+                if subpixels.is_some_and(|n| !(1..=16).contains(&n)) {
+                    return Err(cli::usage(anyhow::anyhow!("--subpixels: expected 1 to 16")));
+                }
                 let mut rep = cli::progress::Reporter::new(if json {
                     cli::progress::Mode::Silent
                 } else {
@@ -410,6 +418,7 @@ fn main() -> ExitCode {
                 });
                 let opts = assess::eval::EvalOptions {
                     render_px: px,
+                    render_subpixels: subpixels.unwrap_or(assess::eval::RENDER_SUBPIXELS),
                     holdout: !no_holdout,
                     observed_like,
                     ..Default::default()
