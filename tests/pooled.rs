@@ -182,21 +182,24 @@ fn points_that_differ_from_their_cluster_beyond_the_noise_keep_their_own_tables(
     assert!(refused(count[0]) || refused(count[1]), "{count:?}");
 }
 
+/// One Beckmann lobe of roughness `(alpha_x, alpha_y)` at every point.
+struct Uniform(f32, f32);
+
+impl SvBrdf for Uniform {
+    fn name(&self) -> &str {
+        "uniform"
+    }
+    fn at(&self, _p: Vec2) -> PointMaterial {
+        lobe(self.0, self.1, 0.0, 0.5)
+    }
+}
+
 /// A homogeneous glossy surface whose lobe (Beckmann, alpha 0.05: about 3
 /// degrees) is narrower than the lights' spacing in half vector (3 to 7
 /// degrees on the rig, twice that with every other LED): no point's table
 /// resolves it, and each point's peak is wherever its lights happened to
 /// fall.
-struct Sharp;
-
-impl SvBrdf for Sharp {
-    fn name(&self) -> &str {
-        "sharp"
-    }
-    fn at(&self, _p: Vec2) -> PointMaterial {
-        lobe(0.05, 0.05, 0.0, 0.5)
-    }
-}
+const SHARP: Uniform = Uniform(0.05, 0.05);
 
 /// Allowed eight clusters, the sharp surface is one material too: how each
 /// point happened to be sampled near its peak does not divide it. (The
@@ -207,7 +210,7 @@ impl SvBrdf for Sharp {
 /// `scripts/eval-all.sh`'s runs.)
 #[test]
 fn a_homogeneous_surface_sharper_than_the_lights_is_still_one_material() {
-    let s = scenario(Arc::new(Sharp));
+    let s = scenario(Arc::new(SHARP));
     let f = run(&s, FitSettings::default());
     let mut maps = f.maps.clone();
     let op = MaskingOperator::new(f.settings.grid);
@@ -294,16 +297,7 @@ fn a_turning_lobe_pools_into_one_shape_once_its_points_are_turned() {
 
 /// A homogeneous lobe narrow across one axis (Beckmann roughness 0.06
 /// against 0.25, brushed metal's kind of shape).
-struct Narrow;
-
-impl SvBrdf for Narrow {
-    fn name(&self) -> &str {
-        "narrow"
-    }
-    fn at(&self, _p: Vec2) -> PointMaterial {
-        lobe(0.06, 0.25, 0.0, 0.5)
-    }
-}
+const NARROW: Uniform = Uniform(0.06, 0.25);
 
 /// `t` blurred by a Gaussian kernel of `cells` times each cell's angular
 /// size (the larger of its ring's width and its sector's arc, as
@@ -344,7 +338,7 @@ fn blurred(t: &brdf::ndf::NdfTable, cells: f32) -> brdf::ndf::NdfTable {
 /// LED fails it.
 #[test]
 fn a_densely_pooled_narrow_lobe_is_nearer_the_truth_than_a_half_cell_blur_of_it() {
-    let s = Scenario { grid: 32, led_stride: 1, ..scenario(Arc::new(Narrow)) };
+    let s = Scenario { grid: 32, led_stride: 1, ..scenario(Arc::new(NARROW)) };
     let f = run(&s, FitSettings::default());
     let mut maps = f.maps.clone();
     let op = MaskingOperator::new(f.settings.grid);

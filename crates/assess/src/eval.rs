@@ -478,8 +478,10 @@ pub fn evaluate(dir: &Path, opts: &EvalOptions, rep: &mut dyn Progress) -> Resul
     let sample = info.geometry.sample;
     // A material's renders under every condition.
     let draw = |m: &dyn SvBrdf| -> Vec<Image> {
-        let scene = |c| scene_for(c, opts.render_px);
-        conds.iter().map(|c| render::render_subpixels(m, &sample, &scene(c), 7, opts.render_subpixels)).collect()
+        conds
+            .iter()
+            .map(|c| render::render_subpixels(m, &sample, &scene_for(c, opts.render_px), 7, opts.render_subpixels))
+            .collect()
     };
     let truth_renders: Option<Vec<Image>> = truth.as_ref().map(|t| {
         rep.stage("eval", format!("rendering the ground truth under {} conditions", conds.len()));
