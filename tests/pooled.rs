@@ -205,9 +205,9 @@ const SHARP: Uniform = Uniform(0.05, 0.05);
 /// point happened to be sampled near its peak does not divide it. (The
 /// overdispersion correction of `fit::pooled` is not what holds it
 /// together here: this surface stays one without it. A measured material
-/// whose lobe is narrower still, `ilm_solo_m_68`, needed it; that file is
-/// not part of the repository, and its figures are in
-/// `scripts/eval-all.sh`'s runs.)
+/// whose lobe is narrower still, `ilm_solo_m_68`, needs it, measured per
+/// sample (`fit::pooled::local_overdispersion`); that file is not part of
+/// the repository, and its figures are in `scripts/eval-all.sh`'s runs.)
 #[test]
 fn a_homogeneous_surface_sharper_than_the_lights_is_still_one_material() {
     let s = scenario(Arc::new(SHARP));
