@@ -342,6 +342,25 @@ fn bad_input_is_refused_clearly_and_nothing_is_lost() {
     assert!(!lab.path("m").exists());
 }
 
+#[test]
+fn the_fit_benchmark_times_every_stage_of_a_preset() {
+    let lab = Lab::new();
+    let o = lab.refl(&["bench", "fit", "--preset", "fast", "--points", "24"]);
+    assert_ok(&o, "refl bench fit --preset fast");
+    let out = String::from_utf8_lossy(&o.stdout);
+    // The preset's plan and NDF grid unless given, and a line per stage
+    // that the fast preset's fit runs (its five analytic models).
+    assert!(out.contains("24 x 24 points, 32 steps x every 2 LED, NDF 16 x 48 cells"), "{out}");
+    for stage in
+        ["per-point fit", "synthesis (", "pooling: ", "analytic fits (5 models)", "model choice", "every stage: "]
+    {
+        assert!(out.contains(stage), "no '{stage}' line:\n{out}");
+    }
+    let o = lab.refl(&["bench", "fit", "--preset", "nosuch"]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("balanced"), "lists the presets: {}", stderr(&o));
+}
+
 /// `material.json` less its timings (keys ending in `_s` or naming
 /// seconds), which two runs of one fit never share.
 fn untimed(v: serde_json::Value) -> serde_json::Value {

@@ -5,7 +5,8 @@
 //!   peak memory, on a synthetic capture written straight into the sample
 //!   store (a simulated material evaluated at every (light, point) pair
 //!   with 1% noise): the default preset's size, or the talk's 800 x 800
-//!   points x 2,560 lights with `--points 800 --steps 64`.
+//!   points x 2,560 lights with `--points 800 --steps 64`; the per-point
+//!   fit and synthesis, or with `--preset Q` every stage of a preset.
 //! - `synthesis`: the three search modes on the same partial tables
 //!   (time, points per second, NDF error against ground truth).
 //! - `camera`, `protocol`, `synthesis-scale`: the simulated camera's frame
@@ -168,11 +169,34 @@ fn mem() -> String {
     peak_memory_mb().map_or("?".into(), |m| format!("{:.0} MB", m))
 }
 
+/// What `refl bench fit` runs after the per-point fit.
+#[derive(Clone, Debug)]
+pub enum BenchStages {
+    /// The per-point fit alone.
+    PointsOnly,
+    /// The per-point fit, then synthesis (its clusters scaled to the grid,
+    /// a hundred points each, 8 to 1,000) and the refit of completed points.
+    Synthesis,
+    /// Every stage of a quality preset, with its fit settings: what
+    /// `capture --quality Q --grid N` fits (synthesis, pooling, analytic
+    /// fits and the model choice's refit and scores).
+    Preset(Box<config::Quality>),
+}
+
 /// `refl bench fit`.
-pub fn fit(sample: &str, side: u32, steps: u32, led_stride: u32, ndf_theta: u32, synthesis: bool) -> Result<()> {
+pub fn fit(sample: &str, side: u32, steps: u32, led_stride: u32, ndf_theta: u32, run: &BenchStages) -> Result<()> {
     let material = crate::truth::sim_material(sample, None)?;
+    let grid = brdf::ndf::NdfGrid { n_theta: ndf_theta, n_phi: 3 * ndf_theta };
+    let (settings, stages, what) = match run {
+        BenchStages::Preset(q) => (
+            FitSettings { grid, ..q.fit.clone() },
+            q.stages(&config::Overrides::default()),
+            format!("every stage of the {} preset", q.name),
+        ),
+        _ => (FitSettings { grid, ..FitSettings::default() }, fit::Stages::default(), "default fit settings".into()),
+    };
     println!(
-        "fit benchmark: '{sample}', {side} x {side} points, {steps} steps x every {led_stride} LED, NDF {ndf_theta} x {} cells, {} threads",
+        "fit benchmark: '{sample}', {side} x {side} points, {steps} steps x every {led_stride} LED, NDF {ndf_theta} x {} cells, {what}, {} threads",
         3 * ndf_theta,
         rayon::current_num_threads()
     );
@@ -187,34 +211,137 @@ pub fn fit(sample: &str, side: u32, steps: u32, led_stride: u32, ndf_theta: u32,
         t.elapsed().as_secs_f64(),
         mem()
     );
-    let settings =
-        FitSettings { grid: brdf::ndf::NdfGrid { n_theta: ndf_theta, n_phi: 3 * ndf_theta }, ..FitSettings::default() };
     let clusters = (n as u32 / 100).clamp(8, 1000);
-    let stages = fit::Stages {
-        synth: synthesis.then(|| SynthSettings { clusters, ..SynthSettings::default() }),
-        ..fit::Stages::default()
+    let stages = match run {
+        BenchStages::Synthesis => {
+            fit::Stages { synth: Some(SynthSettings { clusters, ..SynthSettings::default() }), ..stages }
+        }
+        _ => stages,
     };
+    let rss = RssMonitor::start();
     let r = fit::pipeline::run_stages(&s.ctx, s.store, settings, &stages, &|| false)?;
-    let dt = r.timings.points_s;
+    let rss = rss.finish();
+    let tm = &r.timings;
+    // The stages run one after another in this order from the monitor's
+    // start: each one's peak is the largest resident size sampled within
+    // its span.
+    let spans = [tm.points_s, tm.synthesis_s, tm.pool_s, tm.analytic_s, tm.selection_s];
+    let peaks = stage_peaks(&rss, &spans);
+    let peak = |k: usize| peaks[k].map_or("?".into(), |m| format!("{m:.0} MB"));
+    let dt = tm.points_s;
     let no_spec = r.maps.flags.iter().filter(|&&f| f & fit::point_flag::NO_SPECULAR != 0).count();
     println!(
-        "  per-point fit (gather, diffuse, splat, push-pull, masking, Fresnel): {:.1} s, {:.0} points/s; {no_spec} without specular",
+        "  per-point fit (gather, diffuse, splat, push-pull, masking, Fresnel): {:.1} s, {:.0} points/s; {no_spec} without specular; resident at most {}",
         dt,
         n as f64 / dt,
+        peak(0)
     );
-    if let Some(st) = &r.synth {
-        let dt = r.timings.synthesis_s;
+    if let (Some(st), Some(ss)) = (&r.synth, &stages.synth) {
+        let dt = tm.synthesis_s;
         println!(
-            "  synthesis (accelerated, {clusters} clusters) and the refit with the completed NDFs: {:.1} s (refit {:.1} s), {:.0} points/s; completed {} of {}",
+            "  synthesis ({:?}, {} clusters) and the refit with the completed NDFs: {:.1} s (refit {:.1} s), {:.0} points/s; completed {} of {}; resident at most {}",
+            ss.mode,
+            ss.clusters,
             dt,
-            r.timings.refit_s,
+            tm.refit_s,
             n as f64 / dt,
             st.completed,
             st.points,
+            peak(1)
         );
+    }
+    if let Some(p) = &r.pool {
+        println!(
+            "  pooling: {:.1} s, {:.0} points/s; {} clusters, {} points pooled, {} kept their own table; resident at most {}",
+            tm.pool_s,
+            n as f64 / tm.pool_s,
+            p.clusters,
+            p.pooled,
+            p.kept_own,
+            peak(2)
+        );
+    }
+    if !r.models.is_empty() {
+        println!("  analytic fits ({} models): {:.1} s; resident at most {}", r.models.len(), tm.analytic_s, peak(3));
+    }
+    if let Some(sel) = &r.selection {
+        println!(
+            "  model choice (refit without the held-out steps, scores): {:.1} s; points per class (diffuse, isotropic, anisotropic, tabulated) {:?}; resident at most {}",
+            tm.selection_s,
+            sel.summary.points,
+            peak(4)
+        );
+    }
+    if matches!(run, BenchStages::Preset(_)) {
+        let total = tm.points_s + tm.synthesis_s + tm.pool_s + tm.analytic_s + tm.selection_s;
+        println!("  every stage: {total:.1} s (the material's writing not included)");
     }
     println!("  peak memory {}", mem());
     Ok(())
+}
+
+/// The process's resident size (`VmRSS`), MB.
+fn resident_mb() -> Option<f64> {
+    let s = std::fs::read_to_string("/proc/self/status").ok()?;
+    let kb: f64 = s.lines().find(|l| l.starts_with("VmRSS:"))?.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb / 1024.0)
+}
+
+/// How often [`RssMonitor`] reads the resident size.
+const RSS_PERIOD: std::time::Duration = std::time::Duration::from_millis(20);
+
+/// A thread reading the process's resident size every [`RSS_PERIOD`] from
+/// its start, so that a run of stages can be given each stage's peak.
+struct RssMonitor {
+    stop: Arc<std::sync::atomic::AtomicBool>,
+    thread: std::thread::JoinHandle<Vec<(f64, f64)>>,
+}
+
+impl RssMonitor {
+    fn start() -> Self {
+        let stop = Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let halt = stop.clone();
+        let t = Instant::now();
+        let thread = std::thread::spawn(move || {
+            let mut seen = Vec::new();
+            loop {
+                let done = halt.load(std::sync::atomic::Ordering::Relaxed);
+                if let Some(mb) = resident_mb() {
+                    seen.push((t.elapsed().as_secs_f64(), mb));
+                }
+                if done {
+                    return seen;
+                }
+                std::thread::sleep(RSS_PERIOD);
+            }
+        });
+        Self { stop, thread }
+    }
+
+    /// The (seconds from the start, MB) readings, the last one taken after
+    /// this call.
+    fn finish(self) -> Vec<(f64, f64)> {
+        self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        self.thread.join().unwrap_or_default()
+    }
+}
+
+/// Per span of `spans` (seconds, back to back from 0), the largest reading
+/// of `seen` within it; the last span runs to the last reading. `None` for
+/// a span no reading fell in.
+fn stage_peaks(seen: &[(f64, f64)], spans: &[f64]) -> Vec<Option<f64>> {
+    let mut start = 0.0;
+    let last = spans.iter().rposition(|&d| d > 0.0);
+    spans
+        .iter()
+        .enumerate()
+        .map(|(k, &d)| {
+            let end = if Some(k) == last { f64::INFINITY } else { start + d };
+            let peak = seen.iter().filter(|&&(t, _)| t >= start && t < end).map(|&(_, m)| m).reduce(f64::max);
+            start += d;
+            peak.filter(|_| d > 0.0)
+        })
+        .collect()
 }
 
 /// Pooled relative L2 error of `tables` against the truth over the whole
@@ -437,6 +564,16 @@ pub fn synthesis_scale(sample: &str, points: usize, clusters: u32, rotations: u3
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn each_stage_is_given_the_peak_read_within_its_span() {
+        let seen = [(0.0, 10.0), (0.5, 30.0), (1.0, 20.0), (1.5, 25.0), (2.5, 40.0), (3.2, 15.0)];
+        // Points 0-1 s, synthesis 1-2 s, no pooling, analytic to the end.
+        let peaks = stage_peaks(&seen, &[1.0, 1.0, 0.0, 0.5]);
+        assert_eq!(peaks, vec![Some(30.0), Some(25.0), None, Some(40.0)]);
+        // A span with no reading in it has no peak.
+        assert_eq!(stage_peaks(&seen, &[0.2, 0.2, 5.0]), vec![Some(10.0), None, Some(40.0)]);
+    }
 
     fn through(sample: &str) -> (Synthetic, Synthetic) {
         let material = crate::truth::sim_material(sample, None).unwrap();

@@ -252,23 +252,33 @@ enum BenchCmd {
         #[arg(long, value_name = "TEXT")]
         rows: Option<String>,
     },
-    /// The fitter's stages (points/s) and peak memory on a synthetic
-    /// capture. Default: the balanced preset's size (96 x 96 points, 64
-    /// steps x 40 LEDs). The talk's scale: --points 800 (2,560 lights).
+    /// The fitter's stages (seconds, points/s) and peak memory on a
+    /// synthetic capture. Default: the balanced preset's size (96 x 96
+    /// points, 64 steps x 40 LEDs), the per-point fit and synthesis. The
+    /// talk's scale: --points 800 (2,560 lights). Every stage a capture's
+    /// fit runs: --preset balanced.
     Fit {
         #[arg(long, default_value = "satin")]
         sample: String,
-        /// Points per side.
-        #[arg(long, default_value_t = 96)]
-        points: u32,
-        /// Gantry steps (times 40 LEDs / --led-stride lights).
-        #[arg(long, default_value_t = 64)]
-        steps: u32,
-        #[arg(long, default_value_t = 1)]
-        led_stride: u32,
-        /// NDF table rings (the table is RINGS x 3*RINGS cells).
-        #[arg(long, default_value_t = 16)]
-        ndf_theta: u32,
+        /// Run every stage of this quality preset (synthesis, pooling,
+        /// analytic fits, model choice) with its fit settings; its grid,
+        /// steps, LED stride and NDF table unless given.
+        #[arg(long, value_name = "QUALITY", conflicts_with = "no_synthesis")]
+        preset: Option<String>,
+        /// Points per side [default: 96, or the preset's grid].
+        #[arg(long)]
+        points: Option<u32>,
+        /// Gantry steps (times 40 LEDs / --led-stride lights) [default: 64,
+        /// or the preset's].
+        #[arg(long)]
+        steps: Option<u32>,
+        /// [default: 1, or the preset's]
+        #[arg(long)]
+        led_stride: Option<u32>,
+        /// NDF table rings (the table is RINGS x 3*RINGS cells) [default:
+        /// 16, or the preset's].
+        #[arg(long)]
+        ndf_theta: Option<u32>,
         /// Stop after the per-point fit (no synthesis, no refit).
         #[arg(long)]
         no_synthesis: bool,
@@ -602,9 +612,28 @@ fn main() -> ExitCode {
                         assess::bench::synthesis_scale(&sample, points, clusters, rotations, cone_deg)
                     })
                 }
-                BenchCmd::Fit { sample, points, steps, led_stride, ndf_theta, no_synthesis } => {
+                BenchCmd::Fit { sample, preset, points, steps, led_stride, ndf_theta, no_synthesis } => {
+                    use assess::bench::BenchStages;
+                    let run = match preset {
+                        Some(n) => BenchStages::Preset(Box::new(config::preset(&n).ok_or_else(|| {
+                            cli::usage(anyhow::anyhow!(
+                                "unknown quality '{n}': use one of {}",
+                                config::PRESETS.join(", ")
+                            ))
+                        })?)),
+                        None if no_synthesis => BenchStages::PointsOnly,
+                        None => BenchStages::Synthesis,
+                    };
+                    let q = match &run {
+                        BenchStages::Preset(q) => Some(q.as_ref()),
+                        _ => None,
+                    };
+                    let points = points.or(q.map(|q| q.grid)).unwrap_or(96);
+                    let steps = steps.or(q.map(|q| q.steps)).unwrap_or(64);
+                    let led_stride = led_stride.or(q.map(|q| q.led_stride as u32)).unwrap_or(1);
+                    let ndf_theta = ndf_theta.or(q.map(|q| q.fit.grid.n_theta)).unwrap_or(16);
                     tokio::task::block_in_place(|| {
-                        assess::bench::fit(&sample, points, steps, led_stride, ndf_theta, !no_synthesis)
+                        assess::bench::fit(&sample, points, steps, led_stride, ndf_theta, &run)
                     })
                 }
                 BenchCmd::Synthesis { sample, points, steps, modes, clusters, rotations, neighbours } => {
