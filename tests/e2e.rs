@@ -359,6 +359,29 @@ fn the_fit_benchmark_times_every_stage_of_a_preset() {
     let o = lab.refl(&["bench", "fit", "--preset", "nosuch"]);
     assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
     assert!(stderr(&o).contains("balanced"), "lists the presets: {}", stderr(&o));
+
+    // A stop signal ends a benchmark (it stores nothing) with the
+    // interrupted code, as it ends every other command, rather than after
+    // the minutes the whole benchmark takes.
+    let mut child = lab
+        .cmd(REFL)
+        .args(["bench", "fit", "--preset", "balanced", "--points", "192"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut out = std::io::BufReader::new(child.stdout.take().unwrap());
+    let mut header = String::new();
+    std::io::BufRead::read_line(&mut out, &mut header).unwrap();
+    assert!(header.starts_with("fit benchmark"), "{header}");
+    // SAFETY: plain kill(2) on our own child's pid.
+    unsafe { libc::kill(child.id() as i32, libc::SIGTERM) };
+    let mut rest = String::new();
+    std::io::Read::read_to_string(&mut out, &mut rest).unwrap();
+    let o = child.wait_with_output().unwrap();
+    assert_eq!(o.status.code(), Some(130), "{}", stderr(&o));
+    assert!(stderr(&o).contains("stores nothing"), "{}", stderr(&o));
+    assert!(!rest.contains("every stage"), "it ran to the end:\n{rest}");
 }
 
 /// `material.json` less its timings (keys ending in `_s` or naming

@@ -26,7 +26,8 @@ pub mod exit {
     pub const FAILED: i32 = 1;
     /// The daemon is running another capture.
     pub const BUSY: i32 = 75;
-    /// Interrupted by the operator (Ctrl-C, SIGTERM, `refl daemon --cancel`).
+    /// Interrupted by the operator (Ctrl-C, SIGTERM, `refl daemon --cancel`),
+    /// or a benchmark stopped by one.
     pub const INTERRUPTED: i32 = 130;
 
     /// The exit code an error means: [`INTERRUPTED`] for an operator's
@@ -36,7 +37,7 @@ pub mod exit {
         use material::MaterialError as M;
         use store::StoreError as S;
         for cause in e.chain() {
-            if cause.is::<crate::Interrupted>() {
+            if cause.is::<crate::Interrupted>() || cause.is::<crate::Abandoned>() {
                 return INTERRUPTED;
             }
             if cause.is::<crate::Usage>()
@@ -84,6 +85,20 @@ impl std::fmt::Display for Interrupted {
 }
 
 impl std::error::Error for Interrupted {}
+
+/// An operator's stop of work that stores nothing (a benchmark, named by
+/// the field): the exit code of [`Interrupted`], without its advice to
+/// resume.
+#[derive(Debug)]
+pub struct Abandoned(pub &'static str);
+
+impl std::fmt::Display for Abandoned {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{} was stopped; it stores nothing", self.0)
+    }
+}
+
+impl std::error::Error for Abandoned {}
 
 /// A request that cannot be carried out as given (bad arguments, an
 /// unknown sample, an occupied output directory): the binaries exit with

@@ -376,6 +376,21 @@ fn import(rgl: bool, a: &ImportArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// A benchmark's blocking work, abandoned at the first stop signal (Ctrl-C,
+/// SIGTERM, SIGHUP): a benchmark stores nothing, so there is nothing to
+/// finish, and `main` does not wait for the abandoned thread.
+async fn until_stopped<T: Send + 'static>(
+    stop: &tokio::sync::watch::Receiver<bool>,
+    work: impl FnOnce() -> anyhow::Result<T> + Send + 'static,
+) -> anyhow::Result<T> {
+    let job = tokio::task::spawn_blocking(work);
+    let mut stop = stop.clone();
+    tokio::select! {
+        r = job => r.context("the benchmark's thread failed")?,
+        Ok(_) = stop.wait_for(|s| *s) => Err(cli::Abandoned("the benchmark").into()),
+    }
+}
+
 fn main() -> ExitCode {
     let args = Args::parse();
     let args_log_format = args.log_format;
@@ -592,15 +607,16 @@ fn main() -> ExitCode {
                     cli::bench::realtime(&sample, steps, led_stride, fps).await
                 }
                 BenchCmd::Camera { sample, px, frames } => {
-                    tokio::task::block_in_place(|| assess::bench::camera(&sample, px, frames)).map(|_| ())
+                    until_stopped(&stop, move || assess::bench::camera(&sample, px, frames).map(|_| ())).await
                 }
                 BenchCmd::Protocol { n } => assess::bench::protocol(n).await,
                 BenchCmd::Budget { sample, sim_material, quality, json, rows } => {
                     let q = config::preset(&quality)
                         .ok_or_else(|| cli::usage(anyhow::anyhow!("unknown quality '{quality}'")))?;
-                    let rows = tokio::task::block_in_place(|| {
+                    let rows = until_stopped(&stop, move || {
                         assess::budget::run(&sample, sim_material.as_deref(), &q, rows.as_deref())
-                    })?;
+                    })
+                    .await?;
                     if let Some(p) = json {
                         std::fs::write(&p, serde_json::to_vec_pretty(&rows)?)
                             .with_context(|| format!("cannot write {}", p.display()))?;
@@ -608,9 +624,10 @@ fn main() -> ExitCode {
                     Ok(())
                 }
                 BenchCmd::SynthesisScale { sample, points, clusters, rotations, cone_deg } => {
-                    tokio::task::block_in_place(|| {
+                    until_stopped(&stop, move || {
                         assess::bench::synthesis_scale(&sample, points, clusters, rotations, cone_deg)
                     })
+                    .await
                 }
                 BenchCmd::Fit { sample, preset, points, steps, led_stride, ndf_theta, no_synthesis } => {
                     use assess::bench::BenchStages;
@@ -632,15 +649,17 @@ fn main() -> ExitCode {
                     let steps = steps.or(q.map(|q| q.steps)).unwrap_or(64);
                     let led_stride = led_stride.or(q.map(|q| q.led_stride as u32)).unwrap_or(1);
                     let ndf_theta = ndf_theta.or(q.map(|q| q.fit.grid.n_theta)).unwrap_or(16);
-                    tokio::task::block_in_place(|| {
+                    until_stopped(&stop, move || {
                         assess::bench::fit(&sample, points, steps, led_stride, ndf_theta, &run)
                     })
+                    .await
                 }
                 BenchCmd::Synthesis { sample, points, steps, modes, clusters, rotations, neighbours } => {
                     let modes = assess::bench::parse_modes(&modes)?;
-                    tokio::task::block_in_place(|| {
+                    until_stopped(&stop, move || {
                         assess::bench::synthesis(&sample, points, steps, &modes, clusters, (rotations, neighbours))
                     })
+                    .await
                 }
             },
             Cmd::SimMcu { faults, link, device, time_scale } => {
