@@ -30,7 +30,7 @@ use material::SvBrdf;
 use rayon::prelude::*;
 use setup::{Calibration, CapturePlan, PointGrid, RigGeometry};
 
-use crate::report::peak_memory_mb;
+use crate::report::{peak_memory_mb, resident_memory_mb};
 
 /// A synthetic capture in memory: its context and filled sample store.
 pub struct Synthetic {
@@ -211,9 +211,9 @@ pub fn fit(sample: &str, side: u32, steps: u32, led_stride: u32, ndf_theta: u32,
         t.elapsed().as_secs_f64(),
         mem()
     );
-    let clusters = (n as u32 / 100).clamp(8, 1000);
     let stages = match run {
         BenchStages::Synthesis => {
+            let clusters = (n as u32 / 100).clamp(8, 1000);
             fit::Stages { synth: Some(SynthSettings { clusters, ..SynthSettings::default() }), ..stages }
         }
         _ => stages,
@@ -273,18 +273,10 @@ pub fn fit(sample: &str, side: u32, steps: u32, led_stride: u32, ndf_theta: u32,
         );
     }
     if matches!(run, BenchStages::Preset(_)) {
-        let total = tm.points_s + tm.synthesis_s + tm.pool_s + tm.analytic_s + tm.selection_s;
-        println!("  every stage: {total:.1} s (the material's writing not included)");
+        println!("  every stage: {:.1} s (the material's writing not included)", spans.iter().sum::<f64>());
     }
     println!("  peak memory {}", mem());
     Ok(())
-}
-
-/// The process's resident size (`VmRSS`), MB.
-fn resident_mb() -> Option<f64> {
-    let s = std::fs::read_to_string("/proc/self/status").ok()?;
-    let kb: f64 = s.lines().find(|l| l.starts_with("VmRSS:"))?.split_whitespace().nth(1)?.parse().ok()?;
-    Some(kb / 1024.0)
 }
 
 /// How often [`RssMonitor`] reads the resident size.
@@ -306,7 +298,7 @@ impl RssMonitor {
             let mut seen = Vec::new();
             loop {
                 let done = halt.load(std::sync::atomic::Ordering::Relaxed);
-                if let Some(mb) = resident_mb() {
+                if let Some(mb) = resident_memory_mb() {
                     seen.push((t.elapsed().as_secs_f64(), mb));
                 }
                 if done {

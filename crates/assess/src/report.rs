@@ -139,8 +139,18 @@ pub fn read(dir: &Path) -> Result<Report> {
 
 /// Peak resident memory of this process (Linux `VmHWM`), in MB.
 pub fn peak_memory_mb() -> Option<f64> {
+    status_mb("VmHWM:")
+}
+
+/// Resident memory of this process now (Linux `VmRSS`), in MB.
+pub fn resident_memory_mb() -> Option<f64> {
+    status_mb("VmRSS:")
+}
+
+/// A size in kB that `/proc/self/status` gives on the line starting `key`, in MB.
+fn status_mb(key: &str) -> Option<f64> {
     let s = std::fs::read_to_string("/proc/self/status").ok()?;
-    let line = s.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let line = s.lines().find(|l| l.starts_with(key))?;
     let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
     Some(kb / 1024.0)
 }
