@@ -104,7 +104,7 @@ pub fn preset(name: &str) -> Option<Quality> {
                 seed: 7,
                 ..AnalyticSettings::default()
             },
-            pool: Some(PoolSettings { clusters: 16, seed: 1, turn: true }),
+            pool: Some(PoolSettings { clusters: 16, seed: 1, turn: true, ..PoolSettings::default() }),
         },
         "balanced" => Quality {
             name: name.into(),
@@ -125,7 +125,7 @@ pub fn preset(name: &str) -> Option<Quality> {
                 ..SynthSettings::default()
             },
             analytic: AnalyticSettings { models: all, clusters: 32, seed: 7, ..AnalyticSettings::default() },
-            pool: Some(PoolSettings { clusters: 32, seed: 1, turn: true }),
+            pool: Some(PoolSettings { clusters: 32, seed: 1, turn: true, ..PoolSettings::default() }),
         },
         "best" => Quality {
             name: name.into(),
@@ -147,7 +147,7 @@ pub fn preset(name: &str) -> Option<Quality> {
                 ..SynthSettings::default()
             },
             analytic: AnalyticSettings { models: all, clusters: 64, seed: 7, ..AnalyticSettings::default() },
-            pool: Some(PoolSettings { clusters: 64, seed: 1, turn: true }),
+            pool: Some(PoolSettings { clusters: 64, seed: 1, turn: true, ..PoolSettings::default() }),
         },
         _ => return None,
     };

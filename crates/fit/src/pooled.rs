@@ -42,7 +42,11 @@
 //!    splatted into one table with kernels `sqrt(members)` times narrower
 //!    than one point's (the pooled density), never below half a cell, and
 //!    weighted by their inverse variance. The observed region, closing and
-//!    push-pull are the per-point rules on the pooled weights.
+//!    push-pull are the per-point rules on the pooled weights. A cluster of
+//!    more than [`ESTIMATE_POINTS`] points is estimated from that many,
+//!    spread over it; each step gathers the members it reads from the
+//!    sample store and drops them after, so the stage's memory does not grow
+//!    with the sample's points.
 //! 3. **Scale and masking.** With the pooled table fixed, each member's
 //!    `k_s` is the weighted least-squares scale of the pooled model to its
 //!    own samples; masking is recomputed from the pooled table; two rounds.
@@ -124,11 +128,25 @@ pub struct PoolSettings {
     /// --no-turn-members` pool without it.
     #[serde(default)]
     pub turn: bool,
+    /// The most points a cluster's table is estimated from (every n-th of
+    /// a larger cluster's; each member still takes it or not by its own
+    /// samples): what bounds the stage's memory, [`ESTIMATE_POINTS`]
+    /// unless set (and then recorded with the settings).
+    #[serde(default = "estimate_points", skip_serializing_if = "is_estimate_points")]
+    pub estimate_points: u32,
+}
+
+fn estimate_points() -> u32 {
+    ESTIMATE_POINTS as u32
+}
+
+fn is_estimate_points(n: &u32) -> bool {
+    *n == estimate_points()
 }
 
 impl Default for PoolSettings {
     fn default() -> Self {
-        Self { clusters: 16, seed: 1, turn: false }
+        Self { clusters: 16, seed: 1, turn: false, estimate_points: estimate_points() }
     }
 }
 
@@ -161,8 +179,25 @@ const MIN_KERNEL_CELLS: f32 = 0.5;
 /// Fewest points a pooled cluster holds.
 const MIN_MEMBERS: usize = 2;
 /// Most points a split is tested on (the tables of the final clusters rest
-/// on all their points).
+/// on up to [`ESTIMATE_POINTS`]).
 const TEST_POINTS: usize = 256;
+/// Members a settled cluster's choice ([`choose`]) takes at a time, their
+/// tables written to the maps before the next: the chosen tables (12 KB a
+/// point on the 32 x 96 grid) are held for that many, not for the sample.
+const CHOOSE_POINTS: usize = 4096;
+/// Most points a settled cluster's table is estimated from by default
+/// (`PoolSettings::estimate_points`): every n-th of a larger cluster's (in
+/// the points' order, so spread over the sample).
+/// The pooled kernels reach their floor of half a cell by some 25 members
+/// (one point's kernel is 3 to 7 degrees wide, a cell 2.8), so past that
+/// more members only lower the table's noise; 16,384 points' samples (about
+/// 1,080 each at the balanced preset) give several thousand a cell of the
+/// 32 x 96 grid. Every member still takes the table by its own samples
+/// ([`choose`]). Without the bound the estimate's per-sample arrays grow
+/// with the sample: `refl bench fit --preset balanced --points 192` peaked
+/// at 11 GB in pooling. Every preset's grid is within it, so their
+/// materials are as without it.
+pub const ESTIMATE_POINTS: usize = 16_384;
 
 /// One sample of a member, as pooling reads it.
 #[derive(Clone, Copy, Debug)]
@@ -190,6 +225,7 @@ fn read(table: &NdfTable, k: &KernelAt) -> f32 {
 
 /// One member's samples and the per-point quantities that turn them into
 /// NDF values.
+#[derive(Clone)]
 struct Member {
     p: usize,
     o: Vec3,
@@ -203,6 +239,41 @@ struct Member {
     /// `PoolSettings::turn`.
     axis: Option<f32>,
 }
+
+/// Where the stage's members come from: each is gathered from the sample
+/// store (and read with the maps as they are) when a step needs it and
+/// dropped after it, so the stage holds one step's members at a time (at
+/// most [`ESTIMATE_POINTS`]), not every point's samples.
+#[derive(Clone, Copy)]
+struct Source<'a> {
+    ctx: &'a FitContext,
+    store: &'a SampleStore,
+    settings: &'a FitSettings,
+    op: &'a MaskingOperator,
+    /// The pooled points: member `j` is point `points[j]`.
+    points: &'a [usize],
+    /// Whether members carry their lobes' axes (`PoolSettings::turn`, then
+    /// whether turning pays on the whole sample).
+    turn: bool,
+    /// `PoolSettings::estimate_points`, at least [`MIN_MEMBERS`].
+    estimate_points: usize,
+}
+
+impl Source<'_> {
+    fn member(&self, maps: &PointMaps, j: usize) -> Member {
+        let p = self.points[j];
+        let own = self.op.projected_areas(&maps.tables.get(p));
+        Member::new(p, gather(self.ctx, self.store, p, self.settings), maps, self.op, &own, self.turn)
+    }
+
+    /// Members `js`, in their order, gathered in parallel.
+    fn members(&self, maps: &PointMaps, js: &[usize]) -> Vec<Member> {
+        js.par_iter().map(|&j| self.member(maps, j)).collect()
+    }
+}
+
+/// A way to a member by its index (a [`Source`]'s, or a test's members).
+type Fetch<'a> = dyn Fn(usize) -> Member + Sync + 'a;
 
 /// Cluster, pool and choose; replaces the pooled points' tables and
 /// specular scales in `maps`. `observed` holds the points' tables before
@@ -226,21 +297,13 @@ pub fn pool(
     // The stage's steps' times, in the debug log (`RUST_LOG=fit=debug`).
     let start = std::time::Instant::now();
     let elapsed = || start.elapsed().as_secs_f64();
-    let maps_ref = &*maps;
-    let mut members: Vec<Member> = eligible
-        .par_iter()
-        .map(|&p| {
-            let own = op.projected_areas(&maps_ref.tables.get(p));
-            Member::new(p, gather(ctx, store, p, settings), maps_ref, op, &own, pool.turn)
-        })
-        .collect();
-    tracing::debug!("pooling: {} members' samples gathered at {:.2} s", members.len(), elapsed());
-    let root = if pool.turn { turning_pays(settings, op, &members) } else { None };
+    let estimate_points = (pool.estimate_points as usize).max(MIN_MEMBERS);
+    let mut src = Source { ctx, store, settings, op, points: &eligible, turn: pool.turn, estimate_points };
+    let everyone: Vec<usize> = (0..eligible.len()).collect();
+    let root = if pool.turn { turning_pays_in(settings, op, &|j| src.member(maps, j), &everyone) } else { None };
     tracing::debug!("pooling: whether turning pays tested at {:.2} s", elapsed());
     let turn = root.is_some();
-    if !turn {
-        members.iter_mut().for_each(|m| m.axis = None);
-    }
+    src.turn = turn;
     let core = crate::synth::descriptor::Core::find(&maps.tables, &eligible, DESCRIPTOR);
     let descriptors = core.describe_all(&maps.tables, &eligible);
     let dim = core.len();
@@ -249,7 +312,7 @@ pub fn pool(
     // Clusters still to test and clusters settled. Level by level (the
     // tree stays balanced when the cap binds), the largest clusters
     // first; a level's tests run in parallel.
-    let mut level: Vec<Vec<usize>> = vec![(0..members.len()).collect()];
+    let mut level: Vec<Vec<usize>> = vec![everyone];
     let mut settled: Vec<Vec<usize>> = Vec::new();
     while !level.is_empty() {
         level.sort_by_key(|c| std::cmp::Reverse(c.len()));
@@ -258,7 +321,7 @@ pub fn pool(
             .into_par_iter()
             .enumerate()
             .map(|(n, cluster)| {
-                let split = (n < room).then(|| split(settings, op, &members, &cluster, &descriptors, dim, pool.seed));
+                let split = (n < room).then(|| split(&src, maps, &cluster, &descriptors, dim, pool.seed));
                 (cluster, split.flatten())
             })
             .collect();
@@ -276,42 +339,47 @@ pub fn pool(
         level = next;
         tracing::debug!("pooling: a level of splits tested at {:.2} s ({} settled)", elapsed(), settled.len());
     }
-    // Each settled cluster's table on all its points (a cluster too small
-    // to pool, or without a table, pools nothing).
-    let chosen: Vec<Option<(Vec<(usize, NdfTable, f32)>, bool)>> = settled
-        .par_iter()
-        .map(|cluster| {
-            // Turned where held-out samples say it pays; a cluster of every
-            // member has had its test already ([`turning_pays`]).
-            let reference = if !turn || cluster.len() < MIN_MEMBERS {
-                None
-            } else if cluster.len() == members.len() {
-                root.clone()
-            } else {
-                turning_pays_in(settings, op, &members, cluster)
-            };
-            let (est, turned) = match reference {
-                _ if cluster.len() < MIN_MEMBERS => (None, false),
-                Some(r) => (estimate_against(settings, op, &members, cluster, &r), true),
-                None => {
-                    (estimate_turned(settings, op, &members, cluster, Some(vec![0.0; cluster.len()]), false), false)
+    // Each settled cluster's table, from at most [`ESTIMATE_POINTS`] of its
+    // points, and who takes it, [`CHOOSE_POINTS`] at a time, each written
+    // to the maps before the next (a cluster too small to pool, or without
+    // a table, pools nothing). Clusters are estimated in parallel in
+    // batches of at most [`ESTIMATE_POINTS`] members in all: estimated all
+    // in parallel, several large clusters' samples were held at once (rayon
+    // runs another cluster's task on a thread that waits within one), 9.8
+    // GB at 288 x 288 points in five clusters, with every cluster's chosen
+    // tables held until the last was chosen.
+    let mut rest = &settled[..];
+    while !rest.is_empty() {
+        let (batch, tail) = rest.split_at(batch_len(rest, estimate_points));
+        rest = tail;
+        let estimates: Vec<Option<Settled>> = batch
+            .par_iter()
+            .map(|cluster| {
+                let estimated = (cluster.len() >= MIN_MEMBERS)
+                    .then(|| estimate_settled(&src, maps, cluster, root.as_ref()))
+                    .flatten();
+                ctx.progress.advance(cluster.len() as u64);
+                estimated
+            })
+            .collect();
+        for (cluster, estimated) in batch.iter().zip(estimates) {
+            let Some(estimated) = estimated else { continue };
+            stats.clusters += 1;
+            stats.turned_clusters += usize::from(estimated.reference.is_some());
+            for (k, part) in cluster.chunks(CHOOSE_POINTS).enumerate() {
+                let chosen = choose(&src, maps, part, k * CHOOSE_POINTS, &estimated, observed);
+                for (p, table, k_s) in chosen {
+                    let colour_lum = lum(maps.ks[p]);
+                    let colour = maps.ks[p].map(|c| if colour_lum > 0.0 { c / colour_lum } else { 1.0 });
+                    maps.ks[p] = colour.map(|c| c * k_s);
+                    maps.tables.set(p, &table);
+                    maps.flags[p] |= point_flag::POOLED;
+                    stats.pooled += 1;
                 }
-            };
-            ctx.progress.advance(cluster.len() as u64);
-            est.map(|e| (choose(maps_ref, op, &members, cluster, &e, observed, turned), turned))
-        })
-        .collect();
-    tracing::debug!("pooling: {} clusters estimated and chosen at {:.2} s", settled.len(), elapsed());
-    stats.clusters = chosen.iter().filter(|c| c.is_some()).count();
-    stats.turned_clusters = chosen.iter().filter(|c| c.as_ref().is_some_and(|c| c.1)).count();
-    for (p, table, k_s) in chosen.into_iter().flatten().flat_map(|c| c.0) {
-        let colour_lum = lum(maps.ks[p]);
-        let colour = maps.ks[p].map(|c| if colour_lum > 0.0 { c / colour_lum } else { 1.0 });
-        maps.ks[p] = colour.map(|c| c * k_s);
-        maps.tables.set(p, &table);
-        maps.flags[p] |= point_flag::POOLED;
-        stats.pooled += 1;
+            }
+        }
     }
+    tracing::debug!("pooling: {} clusters estimated and chosen at {:.2} s", settled.len(), elapsed());
     stats.kept_own = eligible.len() - stats.pooled;
     stats
 }
@@ -328,9 +396,8 @@ struct Split {
 /// they spread over the sample): `None` when k-means leaves a half too
 /// small to pool.
 fn split(
-    settings: &FitSettings,
-    op: &MaskingOperator,
-    members: &[Member],
+    src: &Source,
+    maps: &PointMaps,
     cluster: &[usize],
     descriptors: &[f32],
     dim: usize,
@@ -354,7 +421,9 @@ fn split(
         if s.len() >= MIN_MEMBERS { s } else { v[..MIN_MEMBERS].to_vec() }
     };
     let (sa, sb) = (every(&a), every(&b));
-    let better = split_pays(settings, op, members, &sa, &sb);
+    let tested = src.members(maps, &[&sa[..], &sb[..]].concat());
+    let (ta, tb): (Vec<usize>, Vec<usize>) = ((0..sa.len()).collect(), (sa.len()..tested.len()).collect());
+    let better = split_pays(src.settings, src.op, &tested, &ta, &tb);
     Some(Split { a, b, better })
 }
 
@@ -425,7 +494,8 @@ struct Estimate {
     /// Cells the pool observed (the table's free parameters, at most).
     cells: usize,
     /// Each member's turn from the table (radians about the normal, in the
-    /// cluster's order): its table is the pooled one turned by it.
+    /// order of the members it was estimated from): its table is the pooled
+    /// one turned by it.
     turns: Vec<f32>,
 }
 
@@ -575,32 +645,29 @@ fn estimate_against(
     cluster: &[usize],
     r: &Reference,
 ) -> Option<Estimate> {
-    let turns = cluster
-        .par_iter()
-        .map(|&j| match (members[j].axis, r.axis) {
-            (Some(a), Some(c)) => refine_turn(&members[j], &r.table, axis_turn(a, c), true),
-            _ => 0.0,
-        })
-        .collect();
+    let turns = cluster.par_iter().map(|&j| r.turn(&members[j])).collect();
     estimate_turned(settings, op, members, cluster, Some(turns), false)
 }
 
-/// Whether turning members pays on this sample at all ([`turning_pays_in`]
-/// on every member as one cluster; its reference table where it does).
-/// Where it does not, the stage pools exactly as without turning, its
-/// splits included (whose tests estimate with turned members too).
-fn turning_pays(settings: &FitSettings, op: &MaskingOperator, members: &[Member]) -> Option<Reference> {
-    let all: Vec<usize> = (0..members.len()).collect();
-    turning_pays_in(settings, op, members, &all)
+impl Reference {
+    /// A member's turn from the table: its axis' turn from the table's,
+    /// refined ([`refine_turn`]); none for a member or a table without an
+    /// axis.
+    fn turn(&self, mb: &Member) -> f32 {
+        match (mb.axis, self.axis) {
+            (Some(a), Some(c)) => refine_turn(mb, &self.table, axis_turn(a, c), true),
+            _ => 0.0,
+        }
+    }
 }
 
-/// Whether turning `cluster`'s members explains samples the tables did not
-/// see better than pooling them unturned, on at most [`TEST_POINTS`] of
-/// its members spread over it: each member's samples alternately in a
-/// training half, from which both tables (and the turned members' turns)
-/// are estimated, and a held-out half, scored under each (the turned
-/// table turned to the member, as [`choose`] gives it) at the member's best
-/// scale. Held out, because every turn is fitted to its member's own
+/// Whether turning `cluster`'s members (indices for `fetch`) explains
+/// samples the tables did not see better than pooling them unturned, on at
+/// most [`TEST_POINTS`] of its members spread over it: each member's
+/// samples alternately in a training half, from which both tables (and the
+/// turned members' turns) are estimated, and a held-out half, scored under
+/// each (the turned table turned to the member, as [`choose`] gives it) at
+/// the member's best scale. Held out, because every turn is fitted to its member's own
 /// samples and the splat's kernels share each sample among cells, so no
 /// count of parameters prices a turned table fairly against an unturned
 /// one; scored on samples neither saw, the two need none. What it
@@ -610,16 +677,19 @@ fn turning_pays(settings: &FitSettings, op: &MaskingOperator, members: &[Member]
 /// half vectors then spread over more azimuths); its shape does not
 /// change with a turn. Where turning pays, the turned table is the
 /// reference every member of the cluster is turned against
-/// ([`estimate_against`]).
+/// ([`estimate_against`]). Run on the whole sample first, it decides
+/// whether turning pays at all: where it does not, the stage pools exactly
+/// as without turning, its splits included (whose tests estimate with
+/// turned members too).
 fn turning_pays_in(
     settings: &FitSettings,
     op: &MaskingOperator,
-    members: &[Member],
+    fetch: &Fetch,
     cluster: &[usize],
 ) -> Option<Reference> {
     let stride = cluster.len().div_ceil(TEST_POINTS).max(1);
-    let (train, test): (Vec<Member>, Vec<Member>) =
-        cluster.iter().step_by(stride).map(|&j| members[j].halves()).unzip();
+    let tested: Vec<usize> = cluster.iter().copied().step_by(stride).collect();
+    let (train, test): (Vec<Member>, Vec<Member>) = tested.par_iter().map(|&j| fetch(j).halves()).unzip();
     if train.len() < MIN_MEMBERS {
         return None;
     }
@@ -799,22 +869,81 @@ fn estimate_turned(
     Some(Estimate { table, residuals, cells: observed.iter().filter(|&&o| o).count(), turns })
 }
 
-/// The members of a settled cluster that take its table: for each, the
-/// table and its new `k_s`.
-fn choose(
-    maps: &PointMaps,
-    op: &MaskingOperator,
-    members: &[Member],
-    cluster: &[usize],
-    est: &Estimate,
-    own_observed: Option<&TableSet>,
-    turn_members: bool,
-) -> Vec<(usize, NdfTable, f32)> {
-    cluster
+/// How many of `clusters`, from the first, are estimated together: as many
+/// as hold at most `bound` estimated members in all (the first always
+/// does: it is estimated from at most `bound`).
+fn batch_len(clusters: &[Vec<usize>], bound: usize) -> usize {
+    let mut total = 0;
+    clusters
         .iter()
-        .zip(&est.turns)
-        .filter_map(|(&j, &turn)| {
-            let mb = &members[j];
+        .take_while(|c| {
+            total += c.len().min(bound);
+            total <= bound
+        })
+        .count()
+}
+
+/// A settled cluster's table, the members it was estimated from (every
+/// `stride`-th of the cluster's, in its order) and the reference they were
+/// turned against, where turning paid.
+struct Settled {
+    est: Estimate,
+    stride: usize,
+    members: Vec<Member>,
+    reference: Option<Reference>,
+}
+
+/// [`Settled`] for `cluster` (indices into `src`'s points): its table from
+/// at most `PoolSettings::estimate_points` of its members, turned where held-out
+/// samples say it pays (`root`: the whole sample's test, the answer for a
+/// cluster of every point).
+fn estimate_settled(src: &Source, maps: &PointMaps, cluster: &[usize], root: Option<&Reference>) -> Option<Settled> {
+    let (settings, op) = (src.settings, src.op);
+    let reference = if !src.turn {
+        None
+    } else if cluster.len() == src.points.len() {
+        root.cloned()
+    } else {
+        turning_pays_in(settings, op, &|j| src.member(maps, j), cluster)
+    };
+    let stride = cluster.len().div_ceil(src.estimate_points);
+    let picked: Vec<usize> = cluster.iter().copied().step_by(stride).collect();
+    let members = src.members(maps, &picked);
+    let all: Vec<usize> = (0..members.len()).collect();
+    let est = match &reference {
+        Some(r) => estimate_against(settings, op, &members, &all, r),
+        None => estimate_turned(settings, op, &members, &all, Some(vec![0.0; all.len()]), false),
+    }?;
+    Some(Settled { est, stride, members, reference })
+}
+
+/// Which of `part`, members of a settled cluster (indices into `src`'s
+/// points) from its `first`-th on, take its table: for each, the table
+/// and its new `k_s`. A member the table was estimated from has its turn
+/// from the estimate; another is gathered and turned against the
+/// cluster's reference as the estimate turned its own.
+fn choose(
+    src: &Source,
+    maps: &PointMaps,
+    part: &[usize],
+    first: usize,
+    settled: &Settled,
+    own_observed: Option<&TableSet>,
+) -> Vec<(usize, NdfTable, f32)> {
+    let (op, est, reference) = (src.op, &settled.est, settled.reference.as_ref());
+    part.par_iter()
+        .enumerate()
+        .filter_map(|(n, &j)| {
+            let n = first + n;
+            let gathered;
+            let (mb, turn) = if n.is_multiple_of(settled.stride) {
+                (&settled.members[n / settled.stride], est.turns[n / settled.stride])
+            } else {
+                gathered = src.member(maps, j);
+                let turn = reference.map_or(0.0, |r| r.turn(&gathered));
+                (&gathered, turn)
+            };
+            let turn_members = reference.is_some();
             let own = maps.tables.get(mb.p);
             // The pooled table turned to the member, where the pool
             // observed; the point's own completed table beyond, agreeing in
@@ -1153,6 +1282,24 @@ mod tests {
             let d = axis_turn(a, b);
             assert!((d - want).abs() < 1e-5 && (-pi / 2.0..pi / 2.0).contains(&d), "{a} - {b}: {d}, want {want}");
         }
+    }
+
+    #[test]
+    fn clusters_are_estimated_together_up_to_the_bound() {
+        let c = |n: usize| vec![0; n];
+        assert_eq!(batch_len(&[c(10), c(20), c(30)], 100), 3);
+        assert_eq!(batch_len(&[c(10), c(20), c(30)], 59), 2);
+        assert_eq!(batch_len(&[c(95), c(10), c(1)], 100), 1);
+        // A cluster over the bound is estimated from the bound's worth of
+        // points, alone.
+        assert_eq!(batch_len(&[c(300), c(2)], 100), 1);
+        assert_eq!(batch_len(&[c(50), c(50), c(1)], 100), 2);
+    }
+
+    /// Whether turning pays on `members` as one cluster.
+    fn turning_pays(settings: &FitSettings, op: &MaskingOperator, members: &[Member]) -> Option<Reference> {
+        let all: Vec<usize> = (0..members.len()).collect();
+        turning_pays_in(settings, op, &|j| members[j].clone(), &all)
     }
 
     /// A member of samples at the half vectors `hs`, each with noise of
