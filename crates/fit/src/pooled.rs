@@ -667,10 +667,10 @@ impl Reference {
 /// samples alternately in a training half, from which both tables (and the
 /// turned members' turns) are estimated, and a held-out half, scored under
 /// each (the turned table turned to the member, as [`choose`] gives it) at
-/// the member's best scale. Held out, because every turn is fitted to its member's own
-/// samples and the splat's kernels share each sample among cells, so no
-/// count of parameters prices a turned table fairly against an unturned
-/// one; scored on samples neither saw, the two need none. What it
+/// the member's best scale. Held out, because every turn is fitted to its
+/// member's own samples and the splat's kernels share each sample among
+/// cells, so no count of parameters prices a turned table fairly against an
+/// unturned one; scored on samples neither saw, the two need none. What it
 /// refuses: turns that fit noise (one lobe everywhere, its axes read a few
 /// degrees off) or that scatter a shared lobe (axes misread), tested. An
 /// isotropic lobe may be turned where that predicts better (its members'
@@ -894,9 +894,9 @@ struct Settled {
 }
 
 /// [`Settled`] for `cluster` (indices into `src`'s points): its table from
-/// at most `PoolSettings::estimate_points` of its members, turned where held-out
-/// samples say it pays (`root`: the whole sample's test, the answer for a
-/// cluster of every point).
+/// at most `PoolSettings::estimate_points` of its members, turned where
+/// held-out samples say it pays (`root`: the whole sample's test, the
+/// answer for a cluster of every point).
 fn estimate_settled(src: &Source, maps: &PointMaps, cluster: &[usize], root: Option<&Reference>) -> Option<Settled> {
     let (settings, op) = (src.settings, src.op);
     let reference = if !src.turn {
