@@ -244,7 +244,6 @@ struct Member {
 /// store (and read with the maps as they are) when a step needs it and
 /// dropped after it, so the stage holds one step's members at a time (at
 /// most [`ESTIMATE_POINTS`]), not every point's samples.
-#[derive(Clone, Copy)]
 struct Source<'a> {
     ctx: &'a FitContext,
     store: &'a SampleStore,
@@ -345,9 +344,10 @@ pub fn pool(
     // a table, pools nothing). Clusters are estimated in parallel in
     // batches of at most [`ESTIMATE_POINTS`] members in all: estimated all
     // in parallel, several large clusters' samples were held at once (rayon
-    // runs another cluster's task on a thread that waits within one), 9.8
-    // GB at 288 x 288 points in five clusters, with every cluster's chosen
-    // tables held until the last was chosen.
+    // runs another cluster's task on a thread that waits within one). In
+    // `refl bench fit --preset balanced --points 288` (five clusters) a
+    // build of this stage that estimated all clusters in parallel peaked at
+    // 9.8 GB, one estimating them one at a time at 7.6 GB (stop 62's note).
     let mut rest = &settled[..];
     while !rest.is_empty() {
         let (batch, tail) = rest.split_at(batch_len(rest, estimate_points));
@@ -943,12 +943,12 @@ fn choose(
                 let turn = reference.map_or(0.0, |r| r.turn(&gathered));
                 (&gathered, turn)
             };
-            let turn_members = reference.is_some();
             let own = maps.tables.get(mb.p);
             // The pooled table turned to the member, where the pool
             // observed; the point's own completed table beyond, agreeing in
             // mass over the pool's region.
-            let turn = if turn_members && mb.axis.is_some() { refine_turn(mb, &est.table, turn, false) } else { turn };
+            let turn =
+                if reference.is_some() && mb.axis.is_some() { refine_turn(mb, &est.table, turn, false) } else { turn };
             let turned = if turn == 0.0 { est.table.clone() } else { est.table.rotated(turn) };
             let pooled = Splatted { table: turned.clone(), k_s: 1.0 };
             let joined = join(&pooled, &own).map_or(turned, |j| j.table);
