@@ -352,7 +352,7 @@ fn the_fit_benchmark_times_every_stage_of_a_preset() {
     // that the fast preset's fit runs (its five analytic models).
     assert!(out.contains("24 x 24 points, 32 steps x every 2 LED, NDF 16 x 48 cells"), "{out}");
     for stage in
-        ["per-point fit", "synthesis (", "pooling: ", "analytic fits (5 models)", "model choice", "every stage: "]
+        ["per-point fit", "synthesis (", "analytic fits (5 models)", "pooling: ", "model choice", "every stage: "]
     {
         assert!(out.contains(stage), "no '{stage}' line:\n{out}");
     }
@@ -516,7 +516,7 @@ fn the_daemon_runs_one_capture_at_a_time_and_capture_uses_it() {
     // pipeline's order, each count within its total.
     let fit: Vec<&serde_json::Value> = events.iter().filter(|e| e["event"] == "fit").collect();
     assert!(fit.iter().all(|e| e["done"].as_u64() <= e["total"].as_u64()), "{fit:?}");
-    let order = ["drift", "points", "synthesis", "refit", "pooling", "analytic", "choice"];
+    let order = ["drift", "points", "synthesis", "refit", "analytic", "pooling", "choice"];
     let ranks: Vec<usize> =
         fit.iter().map(|e| order.iter().position(|s| e["stage"] == *s).expect("a known stage")).collect();
     assert!(!ranks.is_empty() && ranks.windows(2).all(|w| w[0] <= w[1]), "fit stages out of order: {fit:?}");

@@ -178,8 +178,8 @@ pub enum BenchStages {
     /// a hundred points each, 8 to 1,000) and the refit of completed points.
     Synthesis,
     /// Every stage of a quality preset, with its fit settings: what
-    /// `capture --quality Q --grid N` fits (synthesis, pooling, analytic
-    /// fits and the model choice's refit and scores).
+    /// `capture --quality Q --grid N` fits (synthesis, analytic fits,
+    /// pooling and the model choice's refit and scores).
     Preset(Box<config::Quality>),
 }
 
@@ -225,7 +225,7 @@ pub fn fit(sample: &str, side: u32, steps: u32, led_stride: u32, ndf_theta: u32,
     // The stages run one after another in this order from the monitor's
     // start: each one's peak is the largest resident size sampled within
     // its span.
-    let spans = [tm.points_s, tm.synthesis_s, tm.pool_s, tm.analytic_s, tm.selection_s];
+    let spans = [tm.points_s, tm.synthesis_s, tm.analytic_s, tm.pool_s, tm.selection_s];
     let peaks = stage_peaks(&rss, &spans);
     let peak = |k: usize| peaks[k].map_or("?".into(), |m| format!("{m:.0} MB"));
     let dt = tm.points_s;
@@ -250,6 +250,9 @@ pub fn fit(sample: &str, side: u32, steps: u32, led_stride: u32, ndf_theta: u32,
             peak(1)
         );
     }
+    if !r.models.is_empty() {
+        println!("  analytic fits ({} models): {:.1} s; resident at most {}", r.models.len(), tm.analytic_s, peak(2));
+    }
     if let Some(p) = &r.pool {
         println!(
             "  pooling: {:.1} s, {:.0} points/s; {} clusters, {} points pooled, {} kept their own table; resident at most {}",
@@ -258,11 +261,8 @@ pub fn fit(sample: &str, side: u32, steps: u32, led_stride: u32, ndf_theta: u32,
             p.clusters,
             p.pooled,
             p.kept_own,
-            peak(2)
+            peak(3)
         );
-    }
-    if !r.models.is_empty() {
-        println!("  analytic fits ({} models): {:.1} s; resident at most {}", r.models.len(), tm.analytic_s, peak(3));
     }
     if let Some(sel) = &r.selection {
         println!(
@@ -560,7 +560,7 @@ mod tests {
     #[test]
     fn each_stage_is_given_the_peak_read_within_its_span() {
         let seen = [(0.0, 10.0), (0.5, 30.0), (1.0, 20.0), (1.5, 25.0), (2.5, 40.0), (3.2, 15.0)];
-        // Points 0-1 s, synthesis 1-2 s, no pooling, analytic to the end.
+        // Points 0-1 s, synthesis 1-2 s, no analytic fits, pooling to the end.
         let peaks = stage_peaks(&seen, &[1.0, 1.0, 0.0, 0.5]);
         assert_eq!(peaks, vec![Some(30.0), Some(25.0), None, Some(40.0)]);
         // A span with no reading in it has no peak.

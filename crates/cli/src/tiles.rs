@@ -6,7 +6,7 @@
 //! machine or on many over a shared file system); a capture still taking
 //! frames holds it alone and refuses them. `refl fit DIR --merge` then
 //! reads the `N` tiles, runs the stages that need every point (synthesis,
-//! pooling, analytic fits, the model choice) and writes the material, the
+//! analytic fits, pooling, the model choice) and writes the material, the
 //! same material byte for byte as `refl fit DIR` writes, and removes the
 //! tiles.
 //!

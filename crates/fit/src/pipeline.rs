@@ -10,10 +10,12 @@
 //! 3. **Synthesis** (optional): each point's partial NDF completed from
 //!    other points' rotated NDFs, then every completed point refitted with
 //!    its completed table ([`synthesis_stage`]).
-//! 4. **Pooling** (optional): the points of one material share one NDF,
-//!    estimated from all their samples ([`crate::pooled`]).
-//! 5. **Analytic fits** (optional): every analytic model fitted per
+//! 4. **Analytic fits** (optional): every analytic model fitted per
 //!    point, starting from the points' own tables ([`analytic_stage`]).
+//! 5. **Pooling** (optional): the points of one material share one NDF,
+//!    estimated from all their samples ([`crate::pooled`]). It runs after
+//!    the analytic fits, which start from the tables as they were before
+//!    it, so that no second copy of every point's tables is kept for them.
 //! 6. **Model choice** (with the analytic fits): stages 2-5 run a second
 //!    time without every k-th gantry step (on a quarter of the points of a
 //!    large grid, and with only the analytic models the choice weighs), and
@@ -348,7 +350,10 @@ fn run_from(
         tracing::warn!("{w}");
     }
     let mut timings = Timings::default();
-    let fitted = fit_stages(ctx, &store, &settings, stages, points, None, stop, started, &mut timings)?;
+    // The evidence's samples are kept only where the choice scores on them.
+    let scored_on_evidence = stages.analytic.as_ref().is_some_and(|a| choice_held_out(ctx, a).is_none());
+    let fitted =
+        fit_stages(ctx, &store, &settings, stages, points, None, scored_on_evidence, stop, started, &mut timings)?;
     let selection = match (&stages.analytic, &fitted.evidence) {
         (Some(a), Some(ev)) => {
             let t = Instant::now();
@@ -390,8 +395,9 @@ struct Fitted {
 }
 
 /// Stages 2-5 without the choice: per point (unless `points` holds its
-/// maps already), synthesis, pooling, analytic fits (their shapes started
-/// from `prior`'s where given).
+/// maps already), synthesis, analytic fits (their shapes started from
+/// `prior`'s where given), pooling. The analytic evidence keeps its
+/// samples only if `keep_evidence_samples`.
 #[allow(clippy::too_many_arguments)]
 fn fit_stages(
     ctx: &FitContext,
@@ -400,6 +406,7 @@ fn fit_stages(
     stages: &Stages,
     points: Option<PointMaps>,
     prior: Option<&[ModelFit]>,
+    keep_evidence_samples: bool,
     stop: &dyn Fn() -> bool,
     started: Instant,
     timings: &mut Timings,
@@ -422,12 +429,26 @@ fn fit_stages(
         }
         None => (None, None),
     };
-    // Pooling runs on the completed tables (their masking is the better
-    // start). The analytic fits keep to the points' own tables, as without
+    // The analytic fits keep to the points' own tables, as without
     // pooling: started from pooled tables' moments brushed metal's
     // anisotropic Ward fit lost half its accuracy (measured in issue 16's
-    // note).
-    let per_point = stages.pool.as_ref().and(stages.analytic.as_ref()).map(|_| maps.clone());
+    // note). So they run before pooling replaces those tables, and no copy
+    // of the maps is kept for them (the tables alone are 6.5 KB a point on
+    // the 32 x 96 grid: 4.2 GB at 800 x 800 points).
+    let (models, evidence) = match &stages.analytic {
+        Some(a) if !a.models.is_empty() => {
+            let mut a = analytic_stage(ctx, store, &maps, settings, a, prior, stop)?;
+            timings.analytic_s = a.analytic_s;
+            if !keep_evidence_samples {
+                a.evidence.drop_samples();
+            }
+            (a.models, Some(a.evidence))
+        }
+        _ => (Vec::new(), None),
+    };
+    stopped()?;
+    // Pooling runs on the completed tables (their masking is the better
+    // start).
     let pool = stages.pool.as_ref().map(|ps| {
         let t = Instant::now();
         let observed = partial.as_ref().map(|p| &p.tables);
@@ -436,14 +457,6 @@ fn fit_stages(
         stats
     });
     stopped()?;
-    let (models, evidence) = match &stages.analytic {
-        Some(a) if !a.models.is_empty() => {
-            let a = analytic_stage(ctx, store, per_point.as_ref().unwrap_or(&maps), settings, a, prior, stop)?;
-            timings.analytic_s = a.analytic_s;
-            (a.models, Some(a.evidence))
-        }
-        _ => (Vec::new(), None),
-    };
     Ok(Fitted { maps, partial, pool, synth, models, evidence })
 }
 
@@ -479,8 +492,7 @@ fn choice_scores(
     stop: &dyn Fn() -> bool,
 ) -> Result<crate::select::Scores, FitError> {
     use crate::select::{ScoredOn, scores};
-    let held = a.choice_holdout_every.map(StepSet::for_choice).filter(|s| s.count(ctx.inputs.plan.steps) >= 2);
-    let Some(held) = held else {
+    let Some(held) = choice_held_out(ctx, a) else {
         let (samples, view) = ev.samples();
         return Ok(scores(ScoredOn::FitSamples, samples, view, &fitted.maps, &fitted.models));
     };
@@ -497,10 +509,23 @@ fn choice_scores(
     let mut ignored = Timings::default();
     ctx.progress.begin(crate::FitStage::Choice, 0);
     ctx.progress.set_refitting(true);
-    let h =
-        fit_stages(ctx, store, &refit, &refit_stages, None, Some(&fitted.models), stop, Instant::now(), &mut ignored);
+    let h = fit_stages(
+        ctx,
+        store,
+        &refit,
+        &refit_stages,
+        None,
+        Some(&fitted.models),
+        false,
+        stop,
+        Instant::now(),
+        &mut ignored,
+    );
     ctx.progress.set_refitting(false);
-    let h = h?;
+    // Only the refit's maps and models are scored: the rest (its tables
+    // before synthesis, its clusters) goes before the held-out samples are
+    // gathered.
+    let Fitted { maps: h_maps, models: h_models, .. } = h?;
     ctx.progress.begin(crate::FitStage::Choice, ctx.n_points() as u64);
     let (samples, view): (Vec<Vec<Sample>>, Vec<Vec3>) = (0..ctx.n_points())
         .into_par_iter()
@@ -510,7 +535,14 @@ fn choice_scores(
             (ps.samples, ps.o)
         })
         .unzip();
-    Ok(scores(ScoredOn::HeldOutSteps, &samples, &view, &h.maps, &h.models))
+    Ok(scores(ScoredOn::HeldOutSteps, &samples, &view, &h_maps, &h_models))
+}
+
+/// The gantry steps the model choice holds out of its refit; `None` when
+/// the plan cannot spare two, and the choice scores on the fit's own
+/// samples (the analytic evidence's).
+fn choice_held_out(ctx: &FitContext, a: &AnalyticSettings) -> Option<StepSet> {
+    a.choice_holdout_every.map(StepSet::for_choice).filter(|s| s.count(ctx.inputs.plan.steps) >= 2)
 }
 
 /// Synthesis: complete every point's partial table from other points'
@@ -527,10 +559,19 @@ pub fn synthesis_stage(
 ) -> (PartialMaps, SynthStats, f64) {
     let eligible: Vec<bool> = maps.flags.iter().map(|f| f & point_flag::NO_SPECULAR == 0).collect();
     let out = crate::synth::synthesize_watched(&maps.tables, &eligible, synth, &ctx.progress);
-    let partial = PartialMaps { tables: maps.tables.clone(), ks: maps.ks.clone(), eta: maps.eta.clone() };
     let added: Vec<bool> = out.mass_factor.iter().map(|&k| k != 1.0).collect();
+    // The maps take the completed tables of the points synthesis added to
+    // (the refit reads them there) and keep their own elsewhere; the
+    // partial maps take the tables as they were, moved rather than copied,
+    // so that two copies of every point's tables are held here, not three.
+    let mut tables = out.tables;
+    for p in (0..maps.len()).filter(|&p| !added.get(p).copied().unwrap_or(false)) {
+        tables.copy_from(p, &maps.tables);
+    }
+    let partial =
+        PartialMaps { tables: std::mem::replace(&mut maps.tables, tables), ks: maps.ks.clone(), eta: maps.eta.clone() };
     let t = Instant::now();
-    crate::points::refit_completed(ctx, store, maps, &out.tables, &added, settings, op);
+    crate::points::refit_completed(ctx, store, maps, &added, settings, op);
     (partial, out.stats, t.elapsed().as_secs_f64())
 }
 
@@ -544,8 +585,9 @@ pub struct AnalyticOutcome {
 }
 
 /// Fit every analytic model per point, starting from the points' own
-/// tables (`init`: the maps before pooling when it ran), or from `prior`'s
-/// shapes (an earlier fit of the same models) where given.
+/// tables (`init`: the maps before pooling, which runs after this stage),
+/// or from `prior`'s shapes (an earlier fit of the same models) where
+/// given.
 pub fn analytic_stage(
     ctx: &FitContext,
     store: &SampleStore,

@@ -264,20 +264,20 @@ pub fn fit_points(ctx: &FitContext, store: &SampleStore, settings: &FitSettings,
 }
 
 /// After synthesis: refit the points whose NDF was completed (`added[p]`)
-/// from their samples and completed table ([`refit_point`]), replacing
-/// their maps' entries; the others keep their partial fit. Returns the
-/// number of points refitted.
+/// from their samples and completed table (which `maps.tables` holds for
+/// them; [`refit_point`]), replacing their maps' entries; the others keep
+/// their partial fit. Returns the number of points refitted.
 pub fn refit_completed(
     ctx: &FitContext,
     store: &SampleStore,
     maps: &mut PointMaps,
-    completed: &TableSet,
     added: &[bool],
     settings: &FitSettings,
     op: &MaskingOperator,
 ) -> usize {
     let todo: Vec<usize> = (0..maps.len()).filter(|&p| added.get(p).copied().unwrap_or(false)).collect();
     ctx.progress.begin(crate::FitStage::Refit, todo.len() as u64);
+    let completed = &maps.tables;
     let fits: Vec<_> = todo
         .par_iter()
         .map_init(Scratch::default, |scratch, &p| {

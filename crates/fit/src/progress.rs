@@ -23,10 +23,10 @@ pub enum FitStage {
     Synthesis,
     /// Every point refitted with its completed table.
     Refit,
-    /// One NDF per material from the samples of all its points.
-    Pooling,
     /// The analytic models, one after another.
     Analytic,
+    /// One NDF per material from the samples of all its points.
+    Pooling,
     /// The model choice: the stages again without its held-out steps, then
     /// the scores.
     Choice,
@@ -40,8 +40,8 @@ impl FitStage {
             FitStage::Points => "per-point NDFs",
             FitStage::Synthesis => "microfacet synthesis",
             FitStage::Refit => "refit of completed points",
-            FitStage::Pooling => "pooled NDFs",
             FitStage::Analytic => "analytic models",
+            FitStage::Pooling => "pooled NDFs",
             FitStage::Choice => "model choice",
         }
     }

@@ -78,6 +78,15 @@ impl TableSet {
         write(self.grid, &mut self.values[k * cells..(k + 1) * cells], &mut self.coverage[k * w..(k + 1) * w], t);
     }
 
+    /// Store table `k` of `other` (on the same grid) as table `k`, exactly
+    /// as it is stored there.
+    pub fn copy_from(&mut self, k: usize, other: &TableSet) {
+        assert_eq!(self.grid, other.grid, "tables on one grid");
+        let (cells, w) = (self.grid.len(), self.words());
+        self.values[k * cells..(k + 1) * cells].copy_from_slice(&other.values[k * cells..(k + 1) * cells]);
+        self.coverage[k * w..(k + 1) * w].copy_from_slice(other.coverage_words(k));
+    }
+
     /// Every table in order, each to read and replace on its own: tables
     /// that change independently can change in parallel, in place.
     pub fn slots(&mut self) -> impl Iterator<Item = TableSlot<'_>> {
@@ -200,5 +209,27 @@ mod tests {
             (0.0, 0.0, (cells + 4) as f32 * 0.25)
         );
         assert!(set.cells(2).is_none() && set.get(2).values().iter().all(|&v| v == 0.0));
+    }
+
+    /// A copied table is stored as it was, bit for bit, even one no reader
+    /// takes as stored (a negative value, a NaN, coverage beyond a grid's
+    /// last word), and its neighbours are untouched.
+    #[test]
+    fn a_copied_table_is_stored_bit_for_bit() {
+        let grid = NdfGrid::new(4, 20).unwrap();
+        let (cells, words) = (grid.len(), grid.len().div_ceil(64));
+        let mut values: Vec<f16> = (0..3 * cells).map(|c| f16::from_f32(c as f32 * 0.5 - 7.0)).collect();
+        values[cells + 2] = f16::NAN;
+        let coverage: Vec<u64> = (0..3 * words as u64).map(|w| w.wrapping_mul(0x9E37_79B9_7F4A_7C15)).collect();
+        let from = TableSet::from_raw(grid, 3, values, coverage).unwrap();
+        let mut to = TableSet::new(grid, 3);
+        to.copy_from(1, &from);
+        let (tv, tc) = to.raw();
+        let (fv, fc) = from.raw();
+        let bits = |v: &[f16]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&tv[cells..2 * cells]), bits(&fv[cells..2 * cells]));
+        assert_eq!(tc[words..2 * words], fc[words..2 * words]);
+        assert!(tv[..cells].iter().chain(&tv[2 * cells..]).all(|x| x.to_bits() == 0));
+        assert!(tc[..words].iter().chain(&tc[2 * words..]).all(|&w| w == 0));
     }
 }
