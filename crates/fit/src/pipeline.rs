@@ -350,14 +350,16 @@ fn run_from(
         tracing::warn!("{w}");
     }
     let mut timings = Timings::default();
-    // The evidence's samples are kept only where the choice scores on them.
-    let scored_on_evidence = stages.analytic.as_ref().is_some_and(|a| choice_held_out(ctx, a).is_none());
+    // The choice's held-out steps, decided once: without them it scores on
+    // the evidence's samples, which are kept only then.
+    let held = stages.analytic.as_ref().and_then(|a| choice_held_out(ctx, a));
+    let keep_evidence_samples = stages.analytic.is_some() && held.is_none();
     let fitted =
-        fit_stages(ctx, &store, &settings, stages, points, None, scored_on_evidence, stop, started, &mut timings)?;
+        fit_stages(ctx, &store, &settings, stages, points, None, keep_evidence_samples, stop, started, &mut timings)?;
     let selection = match (&stages.analytic, &fitted.evidence) {
         (Some(a), Some(ev)) => {
             let t = Instant::now();
-            let scores = choice_scores(ctx, &store, &settings, stages, a, ev, &fitted, stop)?;
+            let scores = choice_scores(ctx, &store, &settings, stages, a, held, ev, &fitted, stop)?;
             let selection = crate::select::select(&fitted.maps, &ev.cluster, ev.clusters, &scores);
             timings.selection_s = t.elapsed().as_secs_f64();
             selection
@@ -469,15 +471,16 @@ fn fit_stages(
 const CHOICE_STRIDE_MIN_SIDE: u32 = 32;
 
 /// The model choice's scores ([`crate::select`]): every stage fitted again
-/// without the choice's held-out steps (on a quarter of the points of a
-/// large grid), each class of that fit scored on their samples; on the
-/// fit's own samples when the plan cannot spare two such steps. The
-/// refit's analytic shapes start from the main fit's, so that the choice
-/// scores the lobes the material keeps rather than another local minimum
-/// of the smaller problem (balanced brushed metal with `--hdr 2`: started
-/// from moments, some of the refit's Beckmann clusters ended far from the
-/// main fit's, the choice took GGX as the anisotropic candidate and the
-/// table over it, and `auto` rendered 0.152 where Beckmann renders 0.045).
+/// without the choice's `held` steps ([`choice_held_out`]; on a quarter of
+/// the points of a large grid), each class of that fit scored on their
+/// samples; on the fit's own samples (`ev`'s) when the plan cannot spare
+/// two such steps. The refit's analytic shapes start from the main fit's,
+/// so that the choice scores the lobes the material keeps rather than
+/// another local minimum of the smaller problem (balanced brushed metal
+/// with `--hdr 2`: started from moments, some of the refit's Beckmann
+/// clusters ended far from the main fit's, the choice took GGX as the
+/// anisotropic candidate and the table over it, and `auto` rendered 0.152
+/// where Beckmann renders 0.045).
 /// The start has seen the held-out steps; the refit's minimisation has
 /// not.
 #[allow(clippy::too_many_arguments)]
@@ -487,12 +490,13 @@ fn choice_scores(
     settings: &FitSettings,
     stages: &Stages,
     a: &AnalyticSettings,
+    held: Option<StepSet>,
     ev: &Evidence,
     fitted: &Fitted,
     stop: &dyn Fn() -> bool,
 ) -> Result<crate::select::Scores, FitError> {
     use crate::select::{ScoredOn, scores};
-    let Some(held) = choice_held_out(ctx, a) else {
+    let Some(held) = held else {
         let (samples, view) = ev.samples();
         return Ok(scores(ScoredOn::FitSamples, samples, view, &fitted.maps, &fitted.models));
     };
@@ -561,7 +565,8 @@ pub fn synthesis_stage(
     let out = crate::synth::synthesize_watched(&maps.tables, &eligible, synth, &ctx.progress);
     let added: Vec<bool> = out.mass_factor.iter().map(|&k| k != 1.0).collect();
     // The maps take the completed tables of the points synthesis added to
-    // (the refit reads them there) and keep their own elsewhere; the
+    // (the refit reads them there) and keep their own elsewhere (synthesis
+    // may rewrite a table whose mass it leaves unchanged); the
     // partial maps take the tables as they were, moved rather than copied,
     // so that two copies of every point's tables are held here, not three.
     let mut tables = out.tables;
