@@ -52,7 +52,7 @@ use std::sync::Arc;
 use brdf::Brdf;
 use brdf::params::AnalyticModel;
 use fit::FitSettings;
-use fit::analytic::{AnalyticSettings, evidence, fit_model};
+use fit::analytic::{AnalyticSettings, FitModelsOptions, ModelFit, evidence, fit_model, fit_models};
 use glam::{Vec2, Vec3};
 use material::{PointMaterial, SvBrdf};
 use simfit::{Scenario, run};
@@ -232,5 +232,54 @@ fn he() {
         }
         let e = (num / den).sqrt();
         assert!(e < 0.10, "He BRDF relative error {e:.3}");
+    }
+}
+
+/// The pipeline's fits, which read each point's samples from the store a
+/// chunk of points at a time and fit every model to one chunk before the
+/// next, are those of each model fitted alone on evidence holding every
+/// point's samples, to the bit: from the tables' moments and from a prior
+/// fit (the model choice's refit), with chunks that do not divide the grid,
+/// and with the samples kept as the evidence would hold them.
+#[test]
+fn fits_read_a_chunk_at_a_time_are_those_of_the_held_evidence() {
+    let truth = [0.15f32, 0.12, 0.1, 0.06, 0.06, 0.06, 0.3, 0.12, 0.4, 1.6];
+    let brdf = AnalyticModel::BeckmannAniso.build(&truth).expect("parameter count");
+    let s = Scenario {
+        material: Arc::new(Homogeneous(brdf)),
+        camera_px: 96,
+        grid: GRID,
+        steps: 24,
+        led_stride: 2,
+        exposures_us: vec![20_000],
+        seed: scenario_seed(),
+    };
+    let settings = FitSettings::default();
+    let f = run(&s, settings.clone());
+    let n = f.maps.len();
+    let a = AnalyticSettings { clusters: 2, seed: 3, ..AnalyticSettings::default() };
+    let held = evidence(&f.ctx, &f.store, &f.maps, &settings, &a);
+    let bits = |m: &ModelFit| {
+        let params: Vec<u32> = m.params.iter().map(|v| v.to_bits()).collect();
+        let residual: Vec<Option<u32>> = m.residual.iter().map(|r| r.map(f32::to_bits)).collect();
+        (m.model, params, residual)
+    };
+    let mut prior: Option<Vec<ModelFit>> = None;
+    for chunk in [5, n] {
+        let done = std::cell::Cell::new(0u64);
+        let advance = |k: u64| done.set(done.get() + k);
+        let opts =
+            FitModelsOptions { prior: prior.as_deref(), keep_samples: true, chunk, stop: &|| false, advance: &advance };
+        let (fits, ev) = fit_models(&f.ctx, &f.store, &f.maps, &settings, &a, opts).expect("not stopped");
+        assert_eq!(done.get(), (a.models.len() + n) as u64, "the progress units");
+        assert_eq!((&ev.cluster, ev.clusters), (&held.cluster, held.clusters));
+        assert!(ev.samples() == held.samples(), "chunk {chunk}: the kept samples");
+        assert_eq!(fits.len(), a.models.len());
+        for (got, &m) in fits.iter().zip(&a.models) {
+            let before = prior.as_ref().and_then(|p| p.iter().find(|f| f.model == m));
+            let want = fit_model(m, &f.maps, &held, before);
+            assert!(bits(got) == bits(&want), "chunk {chunk}, prior {}: {m:?}", prior.is_some());
+        }
+        prior = Some(fits);
     }
 }

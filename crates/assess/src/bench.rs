@@ -220,14 +220,17 @@ pub fn fit(sample: &str, side: u32, steps: u32, led_stride: u32, ndf_theta: u32,
     };
     let rss = RssMonitor::start();
     let r = fit::pipeline::run_stages(&s.ctx, s.store, settings, &stages, &|| false)?;
-    let rss = rss.finish();
+    let (rss, heap) = rss.finish();
     let tm = &r.timings;
     // The stages run one after another in this order from the monitor's
     // start: each one's peak is the largest resident size sampled within
-    // its span.
+    // its span, and the largest size of the heap in use.
     let spans = [tm.points_s, tm.synthesis_s, tm.analytic_s, tm.pool_s, tm.selection_s];
-    let peaks = stage_peaks(&rss, &spans);
-    let peak = |k: usize| peaks[k].map_or("?".into(), |m| format!("{m:.0} MB"));
+    let (peaks, in_use) = (stage_peaks(&rss, &spans), stage_peaks(&heap, &spans));
+    let peak = |k: usize| {
+        let mb = |m: Option<f64>| m.map_or("?".into(), |m| format!("{m:.0} MB"));
+        if heap.is_empty() { mb(peaks[k]) } else { format!("{} (allocated at most {})", mb(peaks[k]), mb(in_use[k])) }
+    };
     let dt = tm.points_s;
     let no_spec = r.maps.flags.iter().filter(|&&f| f & fit::point_flag::NO_SPECULAR != 0).count();
     println!(
@@ -282,12 +285,24 @@ pub fn fit(sample: &str, side: u32, steps: u32, led_stride: u32, ndf_theta: u32,
 /// How often [`RssMonitor`] reads the resident size.
 const RSS_PERIOD: std::time::Duration = std::time::Duration::from_millis(20);
 
+/// Readings of the resident size per reading of the heap in use
+/// ([`heap_in_use_mb`], which walks the allocator's free lists under its
+/// locks: every 100 ms, not every 20).
+const HEAP_EVERY: usize = 5;
+
 /// A thread reading the process's resident size every [`RSS_PERIOD`] from
-/// its start, so that a run of stages can be given each stage's peak.
+/// its start, and the heap in use every [`HEAP_EVERY`]-th time, so that a
+/// run of stages can be given each stage's peak of both. The resident size
+/// is what the machine must have; but memory a stage frees stays resident
+/// for the allocator to reuse, so a later stage that needs less shows the
+/// earlier one's peak, which the heap in use does not.
 struct RssMonitor {
     stop: Arc<std::sync::atomic::AtomicBool>,
-    thread: std::thread::JoinHandle<Vec<(f64, f64)>>,
+    thread: std::thread::JoinHandle<(Readings, Readings)>,
 }
+
+/// (seconds from the start, MB) readings.
+type Readings = Vec<(f64, f64)>;
 
 impl RssMonitor {
     fn start() -> Self {
@@ -295,27 +310,49 @@ impl RssMonitor {
         let halt = stop.clone();
         let t = Instant::now();
         let thread = std::thread::spawn(move || {
-            let mut seen = Vec::new();
-            loop {
+            let (mut seen, mut heap) = (Vec::new(), Vec::new());
+            for k in 0.. {
                 let done = halt.load(std::sync::atomic::Ordering::Relaxed);
                 if let Some(mb) = resident_memory_mb() {
                     seen.push((t.elapsed().as_secs_f64(), mb));
                 }
+                if (k % HEAP_EVERY == 0 || done)
+                    && let Some(mb) = heap_in_use_mb()
+                {
+                    heap.push((t.elapsed().as_secs_f64(), mb));
+                }
                 if done {
-                    return seen;
+                    break;
                 }
                 std::thread::sleep(RSS_PERIOD);
             }
+            (seen, heap)
         });
         Self { stop, thread }
     }
 
-    /// The (seconds from the start, MB) readings, the last one taken after
-    /// this call.
-    fn finish(self) -> Vec<(f64, f64)> {
+    /// The readings of the resident size and of the heap in use (none where it cannot be read), the last ones
+    /// taken after this call.
+    fn finish(self) -> (Readings, Readings) {
         self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
         self.thread.join().unwrap_or_default()
     }
+}
+
+/// The bytes the allocator has handed out and not had back, MB: glibc's
+/// `mallinfo2`, the chunks in use in every arena and the blocks mapped on
+/// their own.
+#[cfg(all(target_os = "linux", target_env = "gnu"))]
+fn heap_in_use_mb() -> Option<f64> {
+    // SAFETY: `mallinfo2` takes no arguments and returns a plain struct; it
+    // only reads the allocator's statistics, under the allocator's locks.
+    let m = unsafe { libc::mallinfo2() };
+    Some((m.uordblks + m.hblkhd) as f64 / 1e6)
+}
+
+#[cfg(not(all(target_os = "linux", target_env = "gnu")))]
+fn heap_in_use_mb() -> Option<f64> {
+    None
 }
 
 /// Per span of `spans` (seconds, back to back from 0), the largest reading

@@ -34,14 +34,11 @@ use std::time::Instant;
 
 use brdf::ndf::{MaskingOperator, TableSet};
 use frame::Frame;
-use glam::Vec3;
-use rayon::prelude::*;
 use serde::Serialize;
 use setup::PlannedShot;
 use thiserror::Error;
 
 use crate::analytic::{AnalyticSettings, Evidence, ModelFit};
-use crate::partial::Sample;
 use crate::samples::{Census, SampleStore};
 use crate::select::Selection;
 use crate::settings::StepSet;
@@ -439,11 +436,8 @@ fn fit_stages(
     // the 32 x 96 grid: 4.2 GB at 800 x 800 points).
     let (models, evidence) = match &stages.analytic {
         Some(a) if !a.models.is_empty() => {
-            let mut a = analytic_stage(ctx, store, &maps, settings, a, prior, stop)?;
+            let a = analytic_stage(ctx, store, &maps, settings, a, prior, keep_evidence_samples, stop)?;
             timings.analytic_s = a.analytic_s;
-            if !keep_evidence_samples {
-                a.evidence.drop_samples();
-            }
             (a.models, Some(a.evidence))
         }
         _ => (Vec::new(), None),
@@ -495,7 +489,7 @@ fn choice_scores(
     fitted: &Fitted,
     stop: &dyn Fn() -> bool,
 ) -> Result<crate::select::Scores, FitError> {
-    use crate::select::{ScoredOn, scores};
+    use crate::select::{ScoredOn, scores, scores_by};
     let Some(held) = held else {
         let (samples, view) = ev.samples();
         return Ok(scores(ScoredOn::FitSamples, samples, view, &fitted.maps, &fitted.models));
@@ -530,16 +524,14 @@ fn choice_scores(
     // before synthesis, its clusters) goes before the held-out samples are
     // gathered.
     let Fitted { maps: h_maps, models: h_models, .. } = h?;
+    // Each point's held-out samples are gathered as it is scored, never
+    // all at once (320 samples of 44 bytes a point at the presets' plans).
     ctx.progress.begin(crate::FitStage::Choice, ctx.n_points() as u64);
-    let (samples, view): (Vec<Vec<Sample>>, Vec<Vec3>) = (0..ctx.n_points())
-        .into_par_iter()
-        .map(|p| {
-            let ps = crate::points::gather_choice_held_out(ctx, store, p, &refit);
-            ctx.progress.advance(1);
-            (ps.samples, ps.o)
-        })
-        .unzip();
-    Ok(scores(ScoredOn::HeldOutSteps, &samples, &view, &h_maps, &h_models))
+    Ok(scores_by(ScoredOn::HeldOutSteps, &h_maps, &h_models, |p| {
+        let ps = crate::points::gather_choice_held_out(ctx, store, p, &refit);
+        ctx.progress.advance(1);
+        (std::borrow::Cow::Owned(ps.samples), ps.o)
+    }))
 }
 
 /// The gantry steps the model choice holds out of its refit; `None` when
@@ -584,7 +576,7 @@ pub fn synthesis_stage(
 #[derive(Debug)]
 pub struct AnalyticOutcome {
     pub models: Vec<ModelFit>,
-    /// The clusters and evaluation samples the fits shared.
+    /// The clusters the fits shared, and their evaluation samples if kept.
     pub evidence: Evidence,
     pub analytic_s: f64,
 }
@@ -592,7 +584,9 @@ pub struct AnalyticOutcome {
 /// Fit every analytic model per point, starting from the points' own
 /// tables (`init`: the maps before pooling, which runs after this stage),
 /// or from `prior`'s shapes (an earlier fit of the same models) where
-/// given.
+/// given. The evidence keeps every point's evaluation samples only if
+/// `keep_samples` (the fits read them from the store a chunk at a time).
+#[allow(clippy::too_many_arguments)]
 pub fn analytic_stage(
     ctx: &FitContext,
     store: &SampleStore,
@@ -600,22 +594,17 @@ pub fn analytic_stage(
     settings: &FitSettings,
     a: &AnalyticSettings,
     prior: Option<&[ModelFit]>,
+    keep_samples: bool,
     stop: &dyn Fn() -> bool,
 ) -> Result<AnalyticOutcome, FitError> {
     let t = Instant::now();
-    // The evidence (samples and clusters) counts as one model's work.
-    ctx.progress.begin(crate::FitStage::Analytic, a.models.len() as u64 + 1);
-    let evidence = crate::analytic::evidence(ctx, store, init, settings, a);
-    ctx.progress.advance(1);
-    let mut models = Vec::with_capacity(a.models.len());
-    for &m in &a.models {
-        if stop() {
-            return Err(FitError::Stopped);
-        }
-        let before = prior.and_then(|p| p.iter().find(|f| f.model == m));
-        models.push(crate::analytic::fit_model(m, init, &evidence, before));
-        ctx.progress.advance(1);
-    }
+    // A unit per model's shapes and one per point.
+    ctx.progress.begin(crate::FitStage::Analytic, (a.models.len() + init.len()) as u64);
+    let advance = |k: u64| ctx.progress.advance(k);
+    let chunk = crate::analytic::EVIDENCE_CHUNK;
+    let opts = crate::analytic::FitModelsOptions { prior, keep_samples, chunk, stop, advance: &advance };
+    let (models, evidence) =
+        crate::analytic::fit_models(ctx, store, init, settings, a, opts).ok_or(FitError::Stopped)?;
     Ok(AnalyticOutcome { models, evidence, analytic_s: t.elapsed().as_secs_f64() })
 }
 

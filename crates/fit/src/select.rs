@@ -179,14 +179,26 @@ impl Scores {
 /// Score the tabulated model of `maps`, its diffuse part alone and every
 /// fitted analytic model on each point's `samples` (seen from `view[p]`).
 pub fn scores(on: ScoredOn, samples: &[Vec<Sample>], view: &[Vec3], maps: &PointMaps, fits: &[ModelFit]) -> Scores {
+    scores_by(on, maps, fits, |p| (std::borrow::Cow::Borrowed(samples[p].as_slice()), view[p]))
+}
+
+/// [`scores`] with each point's samples and view given by `point(p)`, as
+/// they are needed (the model choice gathers its held-out samples from the
+/// store point by point, never holding every point's at once).
+pub fn scores_by<'s>(
+    on: ScoredOn,
+    maps: &PointMaps,
+    fits: &[ModelFit],
+    point: impl Fn(usize) -> (std::borrow::Cow<'s, [Sample]>, Vec3) + Sync,
+) -> Scores {
     let op = MaskingOperator::new(maps.tables.grid());
     let n_params: Vec<usize> = fits.iter().map(|f| f.model.n_params()).collect();
     let m = fits.len();
     let per_point: Vec<(Vec<f64>, u32, f64, f64, Vec<f64>)> = (0..maps.len())
         .into_par_iter()
         .map(|p| {
-            let s = &samples[p];
-            let o = view[p];
+            let (s, o) = point(p);
+            let s = &*s;
             let kd = Vec3::from(maps.kd[p]);
             let t = maps.tables.get(p);
             let table: Box<dyn Brdf> = if maps.flags[p] & point_flag::NO_SPECULAR == 0 && t.integral_cos() > 0.0 {

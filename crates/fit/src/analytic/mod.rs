@@ -95,7 +95,8 @@ pub struct ModelFit {
     pub seconds: f64,
 }
 
-/// What the fits share: the clusters and each point's evaluation samples.
+/// What the fits share: the clusters, and each point's evaluation samples
+/// where they are kept.
 #[derive(Clone, Debug)]
 pub struct Evidence {
     /// Cluster of each point (`u32::MAX` for points without specular).
@@ -106,18 +107,10 @@ pub struct Evidence {
 }
 
 impl Evidence {
-    /// Each point's evaluation samples (up to 256, spread over its lights)
-    /// and view direction; empty after [`Evidence::drop_samples`].
+    /// Each point's evaluation samples ([`point_evidence`]) and view
+    /// direction, where [`fit_models`] was asked to keep them; else empty.
     pub fn samples(&self) -> (&[Vec<Sample>], &[Vec3]) {
         (&self.samples, &self.view)
-    }
-
-    /// Free the samples once the fits are done and nothing scores on them,
-    /// keeping the clusters (256 samples of 44 bytes a point: 7 GB at the
-    /// talk's 800 x 800 points).
-    pub fn drop_samples(&mut self) {
-        self.samples = Vec::new();
-        self.view = Vec::new();
     }
 }
 
@@ -129,22 +122,17 @@ fn stride_sample(all: &[Sample], n: usize) -> Vec<Sample> {
     (0..n).map(|k| all[(k as f32 * step) as usize]).collect()
 }
 
-/// Gather evaluation samples and cluster the points.
-pub fn evidence(
-    ctx: &FitContext,
-    store: &SampleStore,
-    maps: &PointMaps,
-    fit: &FitSettings,
-    settings: &AnalyticSettings,
-) -> Evidence {
+/// One point's evaluation samples (up to [`AMPLITUDE_SAMPLES`], spread
+/// over its lights) and view direction.
+pub fn point_evidence(ctx: &FitContext, store: &SampleStore, p: usize, fit: &FitSettings) -> (Vec<Sample>, Vec3) {
+    let ps = gather(ctx, store, p, fit);
+    (stride_sample(&ps.samples, AMPLITUDE_SAMPLES), ps.o)
+}
+
+/// Cluster the points with a specular lobe by their tables; the evidence
+/// holds no samples.
+pub fn clusters(maps: &PointMaps, settings: &AnalyticSettings) -> Evidence {
     let n = maps.len();
-    let (samples, view): (Vec<Vec<Sample>>, Vec<Vec3>) = (0..n)
-        .into_par_iter()
-        .map(|p| {
-            let ps = gather(ctx, store, p, fit);
-            (stride_sample(&ps.samples, AMPLITUDE_SAMPLES), ps.o)
-        })
-        .unzip();
     let eligible: Vec<usize> = (0..n).filter(|&p| maps.flags[p] & point_flag::NO_SPECULAR == 0).collect();
     let mut cluster = vec![u32::MAX; n];
     let mut clusters = 0;
@@ -155,7 +143,128 @@ pub fn evidence(
             cluster[p] = assign[k];
         }
     }
-    Evidence { cluster, clusters, samples, view }
+    Evidence { cluster, clusters, samples: Vec::new(), view: Vec::new() }
+}
+
+/// [`clusters`] with every point's evaluation samples held, for
+/// [`fit_model`] (tests and small grids; the pipeline's [`fit_models`]
+/// reads them a chunk at a time).
+pub fn evidence(
+    ctx: &FitContext,
+    store: &SampleStore,
+    maps: &PointMaps,
+    fit: &FitSettings,
+    settings: &AnalyticSettings,
+) -> Evidence {
+    let (samples, view) = (0..maps.len()).into_par_iter().map(|p| point_evidence(ctx, store, p, fit)).unzip();
+    Evidence { samples, view, ..clusters(maps, settings) }
+}
+
+/// Points whose evaluation samples [`fit_models`] gathers at a time: 46 MB
+/// of samples at 256 a point, where all of a grid's at once are 7 GB at
+/// the talk's 800 x 800 points.
+pub const EVIDENCE_CHUNK: usize = 4096;
+
+/// What [`fit_models`] is asked for besides the fits.
+pub struct FitModelsOptions<'a> {
+    /// Per model, an earlier fit of it to start the shapes from
+    /// ([`fit_model`]'s `prior`).
+    pub prior: Option<&'a [ModelFit]>,
+    /// Keep every point's evaluation samples in the evidence (the model
+    /// choice scores on them when the plan cannot spare held-out steps).
+    pub keep_samples: bool,
+    /// Points gathered at a time ([`EVIDENCE_CHUNK`] in the pipeline).
+    pub chunk: usize,
+    pub stop: &'a dyn Fn() -> bool,
+    /// Called with the work done: 1 after each model's shapes, the number
+    /// of points after each chunk (`models + points` in all).
+    pub advance: &'a dyn Fn(u64),
+}
+
+impl std::fmt::Debug for FitModelsOptions<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("FitModelsOptions")
+            .field("prior", &self.prior.map(|p| p.len()))
+            .field("keep_samples", &self.keep_samples)
+            .field("chunk", &self.chunk)
+            .finish_non_exhaustive()
+    }
+}
+
+/// Fit every model of `settings` over the grid, as [`fit_model`] does on
+/// evidence holding every point's samples, reading each point's samples
+/// from the store ([`point_evidence`]) a chunk of points at a time and
+/// fitting every model to them before the next: the fits are the same to
+/// the bit. `None` if `stop` said so.
+pub fn fit_models(
+    ctx: &FitContext,
+    store: &SampleStore,
+    maps: &PointMaps,
+    fit: &FitSettings,
+    settings: &AnalyticSettings,
+    opts: FitModelsOptions,
+) -> Option<(Vec<ModelFit>, Evidence)> {
+    let mut ev = clusters(maps, settings);
+    let n = maps.len();
+    // The shape fits' members, gathered once for every model.
+    let members = cluster_members(&ev);
+    let mut wanted: Vec<usize> = settings
+        .models
+        .iter()
+        .flat_map(|&model| members.iter().flat_map(move |m| chosen_members(m, shape_sampling(model).0)))
+        .collect();
+    wanted.sort_unstable();
+    wanted.dedup();
+    let gathered: std::collections::HashMap<usize, (Vec<Sample>, Vec3)> =
+        wanted.into_par_iter().map(|p| (p, point_evidence(ctx, store, p, fit))).collect();
+    let member_samples = |p: usize| {
+        let (s, o) = &gathered[&p];
+        (s.as_slice(), *o)
+    };
+    let mut shapes = Vec::with_capacity(settings.models.len());
+    for &m in &settings.models {
+        if (opts.stop)() {
+            return None;
+        }
+        let t = Instant::now();
+        let prior = opts.prior.and_then(|p| p.iter().find(|f| f.model == m));
+        shapes.push((ModelShapes::fit(m, maps, &members, prior, member_samples), t.elapsed().as_secs_f64()));
+        (opts.advance)(1);
+    }
+    drop(gathered);
+    // Per model, the fit as its chunks are appended.
+    let mut fits: Vec<ModelFit> = shapes.iter().map(|(s, _)| s.empty(n)).collect();
+    for lo in (0..n).step_by(opts.chunk.max(1)) {
+        if (opts.stop)() {
+            return None;
+        }
+        let hi = (lo + opts.chunk.max(1)).min(n);
+        let chunk: Vec<(Vec<Sample>, Vec3)> =
+            (lo..hi).into_par_iter().map(|p| point_evidence(ctx, store, p, fit)).collect();
+        for ((s, seconds), out) in shapes.iter_mut().zip(&mut fits) {
+            let t = Instant::now();
+            let points: Vec<_> = (lo..hi)
+                .into_par_iter()
+                .map(|p| {
+                    let (samples, o) = &chunk[p - lo];
+                    s.point(maps, &ev, p, samples, *o)
+                })
+                .collect();
+            s.append(out, points);
+            *seconds += t.elapsed().as_secs_f64();
+        }
+        if opts.keep_samples {
+            for (s, o) in chunk {
+                ev.samples.push(s);
+                ev.view.push(o);
+            }
+        }
+        (opts.advance)((hi - lo) as u64);
+    }
+    for ((_, seconds), f) in shapes.iter().zip(&mut fits) {
+        f.seconds = *seconds;
+    }
+    Some((fits, ev))
 }
 
 fn rms_residual(samples: &[Sample], o: Vec3, f: impl Fn(Vec3, Vec3) -> f32) -> f32 {
@@ -498,108 +607,174 @@ impl ShapeProblem<'_> {
     }
 }
 
-/// Fit `model` over the grid. With `prior` (an earlier fit of the same
-/// model over the same grid), each cluster starts from the prior's shape at
-/// its first member where that is in the model's domain, instead of from
-/// the moments of its tables.
-pub fn fit_model(model: AnalyticModel, maps: &PointMaps, ev: &Evidence, prior: Option<&ModelFit>) -> ModelFit {
-    let t0 = Instant::now();
-    let n = maps.len();
-    let k = ev.clusters;
-    let (per_cluster, per_point) = if shape::expensive(model) {
+/// Member points per cluster and samples per member in `model`'s shape
+/// fit: half of each for the models costly to evaluate.
+fn shape_sampling(model: AnalyticModel) -> (usize, usize) {
+    if shape::expensive(model) {
         (POINTS_PER_CLUSTER / 2, SAMPLES_PER_POINT / 2)
     } else {
         (POINTS_PER_CLUSTER, SAMPLES_PER_POINT)
-    };
-    let mut members: Vec<Vec<usize>> = vec![Vec::new(); k];
+    }
+}
+
+/// Each cluster's member points whose samples enter its shape fit: up to
+/// `per_cluster`, spread over its members.
+fn chosen_members(m: &[usize], per_cluster: usize) -> Vec<usize> {
+    let step = (m.len() as f32 / per_cluster as f32).max(1.0);
+    (0..per_cluster.min(m.len())).map(|j| m[(j as f32 * step) as usize]).collect()
+}
+
+/// Each cluster's points, in order.
+fn cluster_members(ev: &Evidence) -> Vec<Vec<usize>> {
+    let mut members: Vec<Vec<usize>> = vec![Vec::new(); ev.clusters];
     for (p, &c) in ev.cluster.iter().enumerate() {
-        if (c as usize) < k {
+        if (c as usize) < ev.clusters {
             members[c as usize].push(p);
         }
     }
-    let mut etas: Vec<f32> = maps.eta.clone();
-    etas.sort_by(|a, b| a.total_cmp(b));
-    let eta = etas.get(etas.len() / 2).copied().unwrap_or(1.5);
-    let shapes: Vec<Vec<f32>> = members
-        .par_iter()
-        .map(|m| {
-            let start = match m.first() {
-                Some(_) => {
-                    // Moments of the members' mean table.
-                    let g = maps.tables.grid();
-                    let mut mean = brdf::ndf::NdfTable::zeros(g);
-                    for &p in m.iter().take(64) {
-                        let t = maps.tables.get(p);
-                        for c in 0..g.len() {
-                            if t.coverage().get(c) {
-                                mean.values_mut()[c] += t.values()[c];
-                                mean.coverage_mut().set(c, true);
+    members
+}
+
+/// One model's shape per cluster, which each point's amplitudes are then
+/// fitted with ([`ModelShapes::point`]).
+struct ModelShapes {
+    model: AnalyticModel,
+    shapes: Vec<Vec<f32>>,
+    /// The shape given to points without specular.
+    default_shape: Vec<f32>,
+}
+
+impl ModelShapes {
+    /// Fit each cluster's shape to its chosen members' samples
+    /// (`samples_of(p)`: point `p`'s evaluation samples and view).
+    fn fit<'s>(
+        model: AnalyticModel,
+        maps: &PointMaps,
+        members: &[Vec<usize>],
+        prior: Option<&ModelFit>,
+        samples_of: impl Fn(usize) -> (&'s [Sample], Vec3) + Sync,
+    ) -> Self {
+        let n = maps.len();
+        let (per_cluster, per_point) = shape_sampling(model);
+        let mut etas: Vec<f32> = maps.eta.clone();
+        etas.sort_by(|a, b| a.total_cmp(b));
+        let eta = etas.get(etas.len() / 2).copied().unwrap_or(1.5);
+        let shapes: Vec<Vec<f32>> = members
+            .par_iter()
+            .map(|m| {
+                let start = match m.first() {
+                    Some(_) => {
+                        // Moments of the members' mean table.
+                        let g = maps.tables.grid();
+                        let mut mean = brdf::ndf::NdfTable::zeros(g);
+                        for &p in m.iter().take(64) {
+                            let t = maps.tables.get(p);
+                            for c in 0..g.len() {
+                                if t.coverage().get(c) {
+                                    mean.values_mut()[c] += t.values()[c];
+                                    mean.coverage_mut().set(c, true);
+                                }
                             }
                         }
+                        Moments::of(&mean)
                     }
-                    Moments::of(&mean)
+                    None => Moments { alpha_x: 0.3, alpha_y: 0.3, angle_rad: 0.0 },
+                };
+                let k = model.n_params();
+                // The prior's shape at the first member it gave a specular lobe.
+                let from_prior = prior.filter(|f| f.model == model && f.params.len() == n * k).and_then(|f| {
+                    let p = *m.iter().find(|&&p| f.params[p * k + 3..p * k + 6].iter().any(|&x| x > 0.0))?;
+                    shape::unshape(model, &f.params[p * k + 6..(p + 1) * k])
+                });
+                let u0 = from_prior.unwrap_or_else(|| shape::init(model, &start, eta));
+                let chosen = chosen_members(m, per_cluster);
+                let subs: Vec<(Vec<Sample>, Vec3)> = chosen
+                    .iter()
+                    .map(|&p| {
+                        let (s, o) = samples_of(p);
+                        (stride_sample(s, per_point), o)
+                    })
+                    .collect();
+                if subs.iter().all(|s| s.0.is_empty()) {
+                    return shape::shape(model, &u0);
                 }
-                None => Moments { alpha_x: 0.3, alpha_y: 0.3, angle_rad: 0.0 },
-            };
-            let k = model.n_params();
-            // The prior's shape at the first member it gave a specular lobe.
-            let from_prior = prior.filter(|f| f.model == model && f.params.len() == n * k).and_then(|f| {
-                let p = *m.iter().find(|&&p| f.params[p * k + 3..p * k + 6].iter().any(|&x| x > 0.0))?;
-                shape::unshape(model, &f.params[p * k + 6..(p + 1) * k])
-            });
-            let u0 = from_prior.unwrap_or_else(|| shape::init(model, &start, eta));
-            let step = (m.len() as f32 / per_cluster as f32).max(1.0);
-            let chosen: Vec<usize> = (0..per_cluster.min(m.len())).map(|j| m[(j as f32 * step) as usize]).collect();
-            let subs: Vec<Vec<Sample>> = chosen.iter().map(|&p| stride_sample(&ev.samples[p], per_point)).collect();
-            if subs.iter().all(|s| s.is_empty()) {
-                return shape::shape(model, &u0);
-            }
-            let points: Vec<(&[Sample], Vec3)> =
-                chosen.iter().zip(&subs).map(|(&p, s)| (s.as_slice(), ev.view[p])).collect();
-            let n_res = points.iter().map(|p| p.0.len()).sum();
-            let shape_problem = ShapeProblem { model, points, n_res };
-            // Forward differences (step 1e-4 in the unconstrained
-            // parameters, which are logarithms or angles: a relative step
-            // of 1e-4).
-            let problem = Numeric::new(
-                |u: &DVector<f64>| shape_problem.residuals_at(u),
-                DVector::from_vec(u0.clone()),
-                Step::Forward(1e-4),
-            );
-            let (solved, report) = LevenbergMarquardt::new().with_scale_diag(false).with_patience(40).minimize(problem);
-            let u = if report.objective_function.is_finite() { solved.u.as_slice().to_vec() } else { u0 };
-            shape::shape(model, &u)
-        })
-        .collect();
-    let default_shape =
-        shape::shape(model, &shape::init(model, &Moments { alpha_x: 0.3, alpha_y: 0.3, angle_rad: 0.0 }, eta));
-    let fits: Vec<(Vec<f32>, Option<f32>)> = (0..n)
-        .into_par_iter()
-        .map(|p| {
-            let c = ev.cluster[p] as usize;
-            let samples =
-                if shape::expensive(model) { stride_sample(&ev.samples[p], 64) } else { ev.samples[p].clone() };
-            if c < k {
-                turned_amplitudes(model, &shapes[c], &samples, ev.view[p])
-            } else {
-                // No specular: the diffuse albedo alone.
-                let mut params = maps.kd[p].to_vec();
-                params.extend_from_slice(&[0.0, 0.0, 0.0]);
-                params.extend_from_slice(&default_shape);
-                let r = model
-                    .build(&params)
-                    .map(|m| rms_residual(&samples, ev.view[p], |i, o| lum(m.eval(i, o).to_array())));
-                (params, r)
-            }
-        })
-        .collect();
-    let mut params = Vec::with_capacity(n * model.n_params());
-    let mut residual = Vec::with_capacity(n);
-    for (pp, r) in fits {
-        params.extend(pp.into_iter().map(|v| if v.is_finite() { v } else { 0.0 }));
-        residual.push(r.filter(|r| r.is_finite()));
+                let points: Vec<(&[Sample], Vec3)> = subs.iter().map(|(s, o)| (s.as_slice(), *o)).collect();
+                let n_res = points.iter().map(|p| p.0.len()).sum();
+                let shape_problem = ShapeProblem { model, points, n_res };
+                // Forward differences (step 1e-4 in the unconstrained
+                // parameters, which are logarithms or angles: a relative step
+                // of 1e-4).
+                let problem = Numeric::new(
+                    |u: &DVector<f64>| shape_problem.residuals_at(u),
+                    DVector::from_vec(u0.clone()),
+                    Step::Forward(1e-4),
+                );
+                let (solved, report) =
+                    LevenbergMarquardt::new().with_scale_diag(false).with_patience(40).minimize(problem);
+                let u = if report.objective_function.is_finite() { solved.u.as_slice().to_vec() } else { u0 };
+                shape::shape(model, &u)
+            })
+            .collect();
+        let default_shape =
+            shape::shape(model, &shape::init(model, &Moments { alpha_x: 0.3, alpha_y: 0.3, angle_rad: 0.0 }, eta));
+        Self { model, shapes, default_shape }
     }
-    ModelFit { model, params, residual, seconds: t0.elapsed().as_secs_f64() }
+
+    /// Point `p`'s parameters and residual from its evaluation `samples`
+    /// seen from `o`: its cluster's shape (turned to the point where its
+    /// samples say so) with its own amplitudes, or its diffuse albedo alone
+    /// where it has no specular.
+    fn point(&self, maps: &PointMaps, ev: &Evidence, p: usize, samples: &[Sample], o: Vec3) -> (Vec<f32>, Option<f32>) {
+        let model = self.model;
+        let c = ev.cluster[p] as usize;
+        let strided;
+        let samples = if shape::expensive(model) {
+            strided = stride_sample(samples, 64);
+            &strided[..]
+        } else {
+            samples
+        };
+        if c < ev.clusters {
+            turned_amplitudes(model, &self.shapes[c], samples, o)
+        } else {
+            // No specular: the diffuse albedo alone.
+            let mut params = maps.kd[p].to_vec();
+            params.extend_from_slice(&[0.0, 0.0, 0.0]);
+            params.extend_from_slice(&self.default_shape);
+            let r = model.build(&params).map(|m| rms_residual(samples, o, |i, o| lum(m.eval(i, o).to_array())));
+            (params, r)
+        }
+    }
+
+    /// A fit of no points yet, with room for `n`.
+    fn empty(&self, n: usize) -> ModelFit {
+        let params = Vec::with_capacity(n * self.model.n_params());
+        ModelFit { model: self.model, params, residual: Vec::with_capacity(n), seconds: 0.0 }
+    }
+
+    /// Append the next points' [`ModelShapes::point`] to `fit`, in order.
+    fn append(&self, fit: &mut ModelFit, points: Vec<(Vec<f32>, Option<f32>)>) {
+        for (pp, r) in points {
+            fit.params.extend(pp.into_iter().map(|v| if v.is_finite() { v } else { 0.0 }));
+            fit.residual.push(r.filter(|r| r.is_finite()));
+        }
+    }
+}
+
+/// Fit `model` over the grid, on evidence holding every point's samples.
+/// With `prior` (an earlier fit of the same model over the same grid), each
+/// cluster starts from the prior's shape at its first member where that is
+/// in the model's domain, instead of from the moments of its tables.
+pub fn fit_model(model: AnalyticModel, maps: &PointMaps, ev: &Evidence, prior: Option<&ModelFit>) -> ModelFit {
+    let t0 = Instant::now();
+    let members = cluster_members(ev);
+    let shapes = ModelShapes::fit(model, maps, &members, prior, |p| (ev.samples[p].as_slice(), ev.view[p]));
+    let mut fit = shapes.empty(maps.len());
+    let points =
+        (0..maps.len()).into_par_iter().map(|p| shapes.point(maps, ev, p, &ev.samples[p], ev.view[p])).collect();
+    shapes.append(&mut fit, points);
+    fit.seconds = t0.elapsed().as_secs_f64();
+    fit
 }
 
 #[cfg(test)]
