@@ -240,7 +240,7 @@ fn he() {
 /// next, are those of each model fitted alone on evidence holding every
 /// point's samples, to the bit: from the tables' moments and from a prior
 /// fit (the model choice's refit), with chunks that do not divide the grid,
-/// and with the samples kept as the evidence would hold them.
+/// with the samples kept as the evidence would hold them and without.
 #[test]
 fn fits_read_a_chunk_at_a_time_are_those_of_the_held_evidence() {
     let truth = [0.15f32, 0.12, 0.1, 0.06, 0.06, 0.06, 0.3, 0.12, 0.4, 1.6];
@@ -282,4 +282,15 @@ fn fits_read_a_chunk_at_a_time_are_those_of_the_held_evidence() {
         }
         prior = Some(fits);
     }
+    // Not kept (the pipeline's way wherever the choice holds steps out),
+    // the fits are the same and the evidence holds no samples.
+    let opts = FitModelsOptions { prior: None, keep_samples: false, chunk: 7, stop: &|| false, advance: &|_| {} };
+    let (fits, ev) = fit_models(&f.ctx, &f.store, &f.maps, &settings, &a, opts).expect("not stopped");
+    assert!(ev.samples().0.is_empty() && ev.samples().1.is_empty(), "samples kept");
+    for (got, &m) in fits.iter().zip(&a.models) {
+        assert!(bits(got) == bits(&fit_model(m, &f.maps, &held, None)), "not kept: {m:?}");
+    }
+    // A stop asked for is honoured.
+    let opts = FitModelsOptions { prior: None, keep_samples: false, chunk: 7, stop: &|| true, advance: &|_| {} };
+    assert!(fit_models(&f.ctx, &f.store, &f.maps, &settings, &a, opts).is_none(), "a stop was not honoured");
 }
