@@ -73,19 +73,25 @@ const GRID: u32 = 6;
 /// Interior points of the 6x6 grid.
 const INTERIOR: [usize; 4] = [14, 15, 20, 21];
 
+/// The 6 x 6 scenario of a surface that is `brdf` everywhere, lit over
+/// `steps` gantry steps by every `led_stride`-th LED.
+fn homogeneous(brdf: Arc<dyn Brdf>, steps: u32, led_stride: u8) -> Scenario {
+    Scenario {
+        material: Arc::new(Homogeneous(brdf)),
+        camera_px: 96,
+        grid: GRID,
+        steps,
+        led_stride,
+        exposures_us: vec![20_000],
+        seed: scenario_seed(),
+    }
+}
+
 /// Fit `model` to a surface of `model` with `truth` parameters; returns the
 /// fitted parameters at the interior points and the fitted and true BRDFs.
 fn recover(model: AnalyticModel, truth: &[f32]) -> Vec<(Vec<f32>, Vec3)> {
     let brdf = model.build(truth).expect("parameter count");
-    let s = Scenario {
-        material: Arc::new(Homogeneous(brdf)),
-        camera_px: 96,
-        grid: GRID,
-        steps: 40,
-        led_stride: 1,
-        exposures_us: vec![20_000],
-        seed: scenario_seed(),
-    };
+    let s = homogeneous(brdf, 40, 1);
     let settings = FitSettings::default();
     let f = run(&s, settings.clone());
     let a = AnalyticSettings { models: vec![model], clusters: 2, seed: 3, ..AnalyticSettings::default() };
@@ -245,15 +251,7 @@ fn he() {
 fn fits_read_a_chunk_at_a_time_are_those_of_the_held_evidence() {
     let truth = [0.15f32, 0.12, 0.1, 0.06, 0.06, 0.06, 0.3, 0.12, 0.4, 1.6];
     let brdf = AnalyticModel::BeckmannAniso.build(&truth).expect("parameter count");
-    let s = Scenario {
-        material: Arc::new(Homogeneous(brdf)),
-        camera_px: 96,
-        grid: GRID,
-        steps: 24,
-        led_stride: 2,
-        exposures_us: vec![20_000],
-        seed: scenario_seed(),
-    };
+    let s = homogeneous(brdf, 24, 2);
     let settings = FitSettings::default();
     let f = run(&s, settings.clone());
     let n = f.maps.len();

@@ -224,12 +224,16 @@ pub fn fit(sample: &str, side: u32, steps: u32, led_stride: u32, ndf_theta: u32,
     let tm = &r.timings;
     // The stages run one after another in this order from the monitor's
     // start: each one's peak is the largest resident size sampled within
-    // its span, and the largest size of the heap in use.
+    // its span, and the largest allocation.
     let spans = [tm.points_s, tm.synthesis_s, tm.analytic_s, tm.pool_s, tm.selection_s];
-    let (peaks, in_use) = (stage_peaks(&rss, &spans), stage_peaks(&heap, &spans));
+    let (peaks, allocated) = (stage_peaks(&rss, &spans), stage_peaks(&heap, &spans));
     let peak = |k: usize| {
         let mb = |m: Option<f64>| m.map_or("?".into(), |m| format!("{m:.0} MB"));
-        if heap.is_empty() { mb(peaks[k]) } else { format!("{} (allocated at most {})", mb(peaks[k]), mb(in_use[k])) }
+        if heap.is_empty() {
+            mb(peaks[k])
+        } else {
+            format!("{} (allocated at most {})", mb(peaks[k]), mb(allocated[k]))
+        }
     };
     let dt = tm.points_s;
     let no_spec = r.maps.flags.iter().filter(|&&f| f & fit::point_flag::NO_SPECULAR != 0).count();
@@ -285,17 +289,17 @@ pub fn fit(sample: &str, side: u32, steps: u32, led_stride: u32, ndf_theta: u32,
 /// How often [`RssMonitor`] reads the resident size.
 const RSS_PERIOD: std::time::Duration = std::time::Duration::from_millis(20);
 
-/// Readings of the resident size per reading of the heap in use
-/// ([`heap_in_use_mb`], which walks the allocator's free lists under its
+/// Readings of the resident size per reading of the heap's allocation
+/// ([`heap_allocated_mb`], which walks the allocator's free lists under its
 /// locks: every 100 ms, not every 20).
 const HEAP_EVERY: usize = 5;
 
 /// A thread reading the process's resident size every [`RSS_PERIOD`] from
-/// its start, and the heap in use every [`HEAP_EVERY`]-th time, so that a
+/// its start, and the heap's allocation every [`HEAP_EVERY`]-th time, so that a
 /// run of stages can be given each stage's peak of both. The resident size
 /// is what the machine must have; but memory a stage frees stays resident
 /// for the allocator to reuse, so a later stage that needs less shows the
-/// earlier one's peak, which the heap in use does not.
+/// earlier one's peak, which the allocation does not.
 struct RssMonitor {
     stop: Arc<std::sync::atomic::AtomicBool>,
     thread: std::thread::JoinHandle<(Readings, Readings)>,
@@ -317,7 +321,7 @@ impl RssMonitor {
                     seen.push((t.elapsed().as_secs_f64(), mb));
                 }
                 if (k % HEAP_EVERY == 0 || done)
-                    && let Some(mb) = heap_in_use_mb()
+                    && let Some(mb) = heap_allocated_mb()
                 {
                     heap.push((t.elapsed().as_secs_f64(), mb));
                 }
@@ -331,7 +335,7 @@ impl RssMonitor {
         Self { stop, thread }
     }
 
-    /// The readings of the resident size and of the heap in use (none where it cannot be read), the last ones
+    /// The readings of the resident size and of the heap's allocation (none where it cannot be read), the last ones
     /// taken after this call.
     fn finish(self) -> (Readings, Readings) {
         self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
@@ -340,10 +344,11 @@ impl RssMonitor {
 }
 
 /// The bytes the allocator has handed out and not had back, MB: glibc's
-/// `mallinfo2`, the chunks in use in every arena and the blocks mapped on
-/// their own.
+/// `mallinfo2` (glibc 2.33 and later; Debian 12, the rig PC's and CI's
+/// system, has 2.36), the chunks in use in every arena and the blocks
+/// mapped on their own.
 #[cfg(all(target_os = "linux", target_env = "gnu"))]
-fn heap_in_use_mb() -> Option<f64> {
+fn heap_allocated_mb() -> Option<f64> {
     // SAFETY: `mallinfo2` takes no arguments and returns a plain struct; it
     // only reads the allocator's statistics, under the allocator's locks.
     let m = unsafe { libc::mallinfo2() };
@@ -351,7 +356,7 @@ fn heap_in_use_mb() -> Option<f64> {
 }
 
 #[cfg(not(all(target_os = "linux", target_env = "gnu")))]
-fn heap_in_use_mb() -> Option<f64> {
+fn heap_allocated_mb() -> Option<f64> {
     None
 }
 

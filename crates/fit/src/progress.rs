@@ -23,7 +23,8 @@ pub enum FitStage {
     Synthesis,
     /// Every point refitted with its completed table.
     Refit,
-    /// The analytic models, one after another.
+    /// The analytic models: each one's cluster shapes, then every point's
+    /// amplitudes, a chunk of points at a time.
     Analytic,
     /// One NDF per material from the samples of all its points.
     Pooling,

@@ -234,11 +234,12 @@ pub fn fit_models(
     drop(gathered);
     // Per model, the fit as its chunks are appended.
     let mut fits: Vec<ModelFit> = shapes.iter().map(|(s, _)| s.empty(n)).collect();
-    for lo in (0..n).step_by(opts.chunk.max(1)) {
+    let step = opts.chunk.max(1);
+    for lo in (0..n).step_by(step) {
         if (opts.stop)() {
             return None;
         }
-        let hi = (lo + opts.chunk.max(1)).min(n);
+        let hi = (lo + step).min(n);
         let chunk: Vec<(Vec<Sample>, Vec3)> =
             (lo..hi).into_par_iter().map(|p| point_evidence(ctx, store, p, fit)).collect();
         for ((s, seconds), out) in shapes.iter_mut().zip(&mut fits) {
