@@ -15,9 +15,11 @@ have() { dpkg -s "$1" >/dev/null 2>&1; }
 # node with npm for the Khronos glTF validator.
 # The browser tier (scripts/web-test.sh): Debian's chromium.
 # The systemd tier (scripts/vm-systemd-test.sh): mmdebstrap for its guest's root.
+# The processor check (scripts/cpu-check.sh): qemu-user, to run the
+# binaries as an older and a newer processor (objdump is build-essential's).
 # The cluster tier (scripts/slurm-test.sh): Slurm's controller, node daemon
 # and client, and munge; PyYAML for the Kubernetes manifests' check.
-for p in build-essential pkg-config libclang-dev qemu-system-x86 busybox-static cpio kmod xz-utils openimageio-tools chromium mmdebstrap slurmctld slurmd slurm-client munge python3-yaml; do
+for p in build-essential pkg-config libclang-dev qemu-system-x86 qemu-user busybox-static cpio kmod xz-utils openimageio-tools chromium mmdebstrap slurmctld slurmd slurm-client munge python3-yaml; do
   have "$p" || need_pkgs+=("$p")
 done
 if ! command -v npm >/dev/null 2>&1; then

@@ -1,10 +1,10 @@
 #!/usr/bin/env bash
 # The whole test suite, from a fresh clone: system packages, the workspace's
-# tests (end-to-end runs of the binaries included), the firmware protocol's
-# no_std build, the Python examples, the exported formats in their
-# tools, the daemon's web page in a real browser, the V4L2 backend against
-# the kernel's vivid driver in a QEMU guest, the daemon's systemd unit, and
-# the fit spread over a Slurm cluster.
+# tests (end-to-end runs of the binaries included), the binaries' processor
+# check, the firmware protocol's no_std build, the Python examples, the
+# exported formats in their tools, the daemon's web page in a real
+# browser, the V4L2 backend against the kernel's vivid driver in a QEMU
+# guest, the daemon's systemd unit, and the fit spread over a Slurm cluster.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
@@ -12,6 +12,9 @@ export CARGO_TERM_COLOR=never
 # Proves firmware-protocol is no_std and allocation-free (see PROTOCOL.md).
 cargo build --quiet --manifest-path firmware-protocol/nostd-check/Cargo.toml
 cargo test --workspace --no-fail-fast
+# The binaries refuse a processor without the instructions they were
+# compiled for, saying so (.cargo/config.toml).
+bash scripts/cpu-check.sh
 # The Python examples in a fresh virtual environment, against refl.
 bash scripts/python-test.sh
 # The glTF and EXR files through the Khronos validator and oiiotool.

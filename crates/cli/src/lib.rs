@@ -7,6 +7,7 @@
 pub mod bench;
 pub mod calib;
 pub mod capture;
+pub mod cpu;
 pub mod daemon;
 pub mod fitjob;
 pub mod output;

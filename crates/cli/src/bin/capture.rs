@@ -109,6 +109,14 @@ struct Args {
 }
 
 fn main() -> ExitCode {
+    // Before anything the build's instruction set could be used in
+    // (`cli::cpu`).
+    cli::cpu::check();
+    run()
+}
+
+#[inline(never)]
+fn run() -> ExitCode {
     let args = Args::parse();
     cli::init_logging(args.log_format);
     if args.list_samples {

@@ -392,6 +392,14 @@ async fn until_stopped<T: Send + 'static>(
 }
 
 fn main() -> ExitCode {
+    // Before anything the build's instruction set could be used in
+    // (`cli::cpu`).
+    cli::cpu::check();
+    run()
+}
+
+#[inline(never)]
+fn run() -> ExitCode {
     let args = Args::parse();
     let args_log_format = args.log_format;
     cli::init_logging(args_log_format);
