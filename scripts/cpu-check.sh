@@ -7,11 +7,12 @@
 #
 # 1. The machine code that runs before the check has answered (the C `main`,
 #    the standard library's start-up closure and the binary's `main`, up to
-#    the call of the check) and the check itself (`cli::cpu::check`,
-#    `refuse`, `say`) must be x86-64 baseline instructions only: the listed
-#    ones, with no VEX-encoded (AVX) or BMI forms. The compiler chooses
-#    those freely in any Rust it compiles for x86-64-v3, so this reads the
-#    disassembly (objdump) rather than trusting the source.
+#    the call of the check) and the check itself (`cli::cpu::check` and
+#    every function of `cli::cpu` it calls) must be x86-64 baseline
+#    instructions only: the listed ones, with no VEX-encoded (AVX) or BMI
+#    forms. The compiler chooses those freely in any Rust it compiles for
+#    x86-64-v3, so this reads the disassembly (objdump) rather than
+#    trusting the source.
 # 2. Run under QEMU's user-mode emulation as a Nehalem (x86-64-v2, no AVX),
 #    `refl --version` must exit 1 with the message naming AVX2; as a
 #    Haswell (x86-64-v3) it must print its version. QEMU does not fault on
@@ -57,9 +58,9 @@ def code(fn):
 # by mnemonic as objdump prints it (AT&T, with size suffixes).
 allowed = re.compile(r"(push|pop|mov|movabs|movz[bw]|movs[bwl]|lea|call|jmp|j[a-z]+|ret|int3|nop|endbr64|xor|and|or|not|add|sub|cmp|test|bt|set[a-z]+|cmov[a-z]+|cpuid|xgetbv|xchg|inc|dec|neg|shl|shr|sar|cltq|cqto|cltd|ud2|movaps|movups|movq|movd|movdqa|movdqu|xorps|pxor)[lqwb]?")
 checked = []
-def inspect(fn, until_call_of=None):
+def inspect(fn, to_first_call=False):
     for addr, op, args in code(fn):
-        if until_call_of is not None and op.startswith("call"):
+        if to_first_call and op.startswith("call"):
             break
         if not allowed.fullmatch(op):
             sys.exit(f"cpu-check: {binary}: {fn[0]} at {addr:#x}: '{op} {args}' is not a baseline x86-64 instruction, and it runs before or in the processor check")
@@ -82,9 +83,22 @@ inspect(closure)
 for target in direct_calls(closure):
     inspect(by_address(target))
 # The binary's `main`: to its first call (the check, through the GOT).
-inspect(find(rf"{name}::main"), until_call_of="check")
-for f in ("check", "refuse", "say"):
-    inspect(find(rf"cli::cpu::{f}"))
+inspect(find(rf"{name}::main"), to_first_call=True)
+# The check, and every function of `cli::cpu` it calls, however deep (a
+# closure or a helper the compiler kept apart; calls into the standard
+# library's compiled code and libc are not followed).
+seen = set()
+todo = [find(r"cli::cpu::check")]
+while todo:
+    fn = todo.pop()
+    if fn[1][0] in seen:
+        continue
+    seen.add(fn[1][0])
+    inspect(fn)
+    for target in direct_calls(fn):
+        callee = by_address(target)
+        if callee[0].startswith("cli::cpu::"):
+            todo.append(callee)
 print(f"cpu-check: {binary}: baseline instructions only in {len(checked)} functions ({', '.join(sorted(set(checked)))})", file=sys.stderr)
 EOF
   out=$(qemu-x86_64 -cpu Nehalem "$b" --version 2>&1) && rc=0 || rc=$?

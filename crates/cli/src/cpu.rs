@@ -74,7 +74,9 @@ pub struct CpuReport {
 }
 
 impl CpuReport {
-    /// Whether the processor (and its OS) provides `f`.
+    /// Whether the processor (and its OS) provides `f`. Inlined always:
+    /// [`refuse`] runs it where the build's instructions may be missing.
+    #[inline(always)]
     pub fn has(&self, f: Feature) -> bool {
         match f.at {
             Bit::Leaf1Ecx(b) => self.leaf1_ecx & (1 << b) != 0,
@@ -240,15 +242,11 @@ pub fn check() {
 #[cold]
 #[inline(never)]
 fn refuse(leaf1: u32, leaf7: u32, ext: u32, xcr0: u32) -> ! {
+    let report = CpuReport { leaf1_ecx: leaf1, leaf7_ebx: leaf7, ext_ecx: ext, xcr0 };
+    // Each feature a constant, so that its test folds to one bit test.
     #[inline(always)]
-    fn name_if_missing(f: Feature, leaf1: u32, leaf7: u32, ext: u32, xcr0: u32) {
-        let has = match f.at {
-            Bit::Leaf1Ecx(b) => leaf1 & (1 << b) != 0,
-            Bit::Leaf7Ebx(b) => leaf7 & (1 << b) != 0,
-            Bit::ExtEcx(b) => ext & (1 << b) != 0,
-            Bit::OsAvxState => xcr0 & 0b110 == 0b110,
-        };
-        if f.compiled && !has {
+    fn name_if_missing(report: &CpuReport, f: Feature) {
+        if f.compiled && !report.has(f) {
             say(b" ");
             say(f.name.as_bytes());
         }
@@ -256,17 +254,16 @@ fn refuse(leaf1: u32, leaf7: u32, ext: u32, xcr0: u32) -> ! {
     // One line below per feature.
     const _: () = assert!(FEATURES.len() == 10);
     say(b"error: this build of the reflectometer is compiled for x86-64-v3 processors (Intel Haswell, 2013, AMD Excavator, 2015, and later), and this processor lacks:");
-    let r = (leaf1, leaf7, ext, xcr0);
-    name_if_missing(FEATURES[0], r.0, r.1, r.2, r.3);
-    name_if_missing(FEATURES[1], r.0, r.1, r.2, r.3);
-    name_if_missing(FEATURES[2], r.0, r.1, r.2, r.3);
-    name_if_missing(FEATURES[3], r.0, r.1, r.2, r.3);
-    name_if_missing(FEATURES[4], r.0, r.1, r.2, r.3);
-    name_if_missing(FEATURES[5], r.0, r.1, r.2, r.3);
-    name_if_missing(FEATURES[6], r.0, r.1, r.2, r.3);
-    name_if_missing(FEATURES[7], r.0, r.1, r.2, r.3);
-    name_if_missing(FEATURES[8], r.0, r.1, r.2, r.3);
-    name_if_missing(FEATURES[9], r.0, r.1, r.2, r.3);
+    name_if_missing(&report, FEATURES[0]);
+    name_if_missing(&report, FEATURES[1]);
+    name_if_missing(&report, FEATURES[2]);
+    name_if_missing(&report, FEATURES[3]);
+    name_if_missing(&report, FEATURES[4]);
+    name_if_missing(&report, FEATURES[5]);
+    name_if_missing(&report, FEATURES[6]);
+    name_if_missing(&report, FEATURES[7]);
+    name_if_missing(&report, FEATURES[8]);
+    name_if_missing(&report, FEATURES[9]);
     say(b"\nBuild it for this processor instead: RUSTFLAGS=\"-C target-cpu=native\" cargo build --release (README, \"Building for a processor\").\n");
     std::process::exit(crate::exit::FAILED)
 }
