@@ -199,6 +199,44 @@ fn tabulated_masking_matches_smith_for_beckmann_and_ggx() {
     }
 }
 
+/// A direction's projected area is the table's values interpolated
+/// between the two direction rings and the two sectors around it (rings at
+/// `j / (n - 1) * pi/2`, sectors centred at `(q + 1/2) 2 pi / n_phi`), the
+/// last sector's neighbour being the first: checked by hand on both sides
+/// of that seam (where the located cell's second sector is not stored but
+/// follows from the first) and away from it.
+#[test]
+fn masking_reads_between_sectors_across_the_azimuth_seam() {
+    use std::f64::consts::{FRAC_PI_2, TAU};
+    for grid in [NdfGrid::DEFAULT, NdfGrid::new(9, 27).unwrap()] {
+        let op = MaskingOperator::new(grid);
+        let mut table = NdfTable::from_ndf(grid, &Beckmann::new(0.5, 0.2, 0.6));
+        table.normalize();
+        let m = op.projected_areas(&table);
+        let np = grid.n_phi as usize;
+        let rings = m.values().len() / np;
+        let dphi = TAU / np as f64;
+        for theta_deg in [10.0f64, 33.0, 61.0, 84.0] {
+            for phi in [0.1 * dphi, 0.45 * dphi, 0.55 * dphi, 3.2 * dphi, TAU - 0.3 * dphi, TAU - 0.02 * dphi] {
+                let theta = theta_deg.to_radians();
+                let x = theta / FRAC_PI_2 * (rings - 1) as f64;
+                let (j0, fj) = (x.floor() as usize, x.fract());
+                let y = phi / dphi - 0.5;
+                let (q0, fq) = (y.floor().rem_euclid(np as f64) as usize, y - y.floor());
+                let q1 = (q0 + 1) % np;
+                let s = |j: usize, q: usize| m.values()[j * np + q] as f64;
+                let ring = |j: usize| s(j, q0) * (1.0 - fq) + s(j, q1) * fq;
+                let want = (ring(j0) * (1.0 - fj) + ring(j0 + 1) * fj).max(theta.cos());
+                let got = m.projected_area(dir(theta, phi)) as f64;
+                assert!(
+                    (got - want).abs() <= 1e-4 * want,
+                    "{grid:?} theta {theta_deg} phi {phi:.4}: {got} against {want} by hand"
+                );
+            }
+        }
+    }
+}
+
 #[test]
 fn power_cosine_masking_approximation_error_is_bounded() {
     // The Beckmann equivalence used for the power-cosine projected area,

@@ -199,7 +199,9 @@ const CHOOSE_POINTS: usize = 4096;
 /// materials are as without it.
 pub const ESTIMATE_POINTS: usize = 16_384;
 
-/// One sample of a member, as pooling reads it.
+/// One sample of a member, as pooling reads it: 48 bytes, held for each
+/// sample of up to [`ESTIMATE_POINTS`] members (one to two thousand a
+/// member at the balanced preset), the largest part of the stage's memory.
 #[derive(Clone, Copy, Debug)]
 struct PoolSample {
     /// The light's direction located in the masking tables.
@@ -216,6 +218,8 @@ struct PoolSample {
     /// `4 sigma(i) sigma(o)` under the point's own table's masking.
     own_masking: f32,
 }
+
+const _: () = assert!(std::mem::size_of::<PoolSample>() == 48);
 
 /// `table` at a sample's half vector (`NdfTable::eval`, from the angles
 /// the kernel has).
@@ -449,13 +453,19 @@ const MAX_STORED_CELLS: usize = 1 << 24;
 /// [`MAX_STORED_CELLS`] (fewer corners than samples).
 #[allow(clippy::type_complexity)]
 fn store_kernels(kg: &KernelGrid, at: &[KernelAt]) -> (Vec<(u32, f32)>, Vec<usize>, Vec<[(u32, f32); 4]>) {
-    let (mut cells, mut offsets, mut corners) = (Vec::new(), vec![0], Vec::with_capacity(at.len()));
+    let (mut cells, mut offsets, mut corners) = (Vec::new(), vec![0], Vec::new());
+    // A sample's cells are found aside and kept only if they fit: pushed
+    // straight on, the sample past the bound doubled the store's capacity
+    // (to 268 MB) before it was dropped. Nor are corners reserved for
+    // every sample: only those before the bound are kept.
+    let mut one = Vec::new();
     for k in at {
-        let c = kernel_at(kg, k, &mut cells);
-        if cells.len() > MAX_STORED_CELLS {
-            cells.truncate(offsets[offsets.len() - 1]);
+        one.clear();
+        let c = kernel_at(kg, k, &mut one);
+        if cells.len() + one.len() > MAX_STORED_CELLS {
             break;
         }
+        cells.extend_from_slice(&one);
         offsets.push(cells.len());
         corners.push(c);
     }

@@ -63,8 +63,17 @@ impl MaskingOperator {
         Self::with_direction_rings(grid, 2 * grid.n_theta as usize + 1)
     }
 
+    /// Build the operator for a grid, with `n_theta_k` direction rings (at
+    /// least 2). Panics past 65,535 rings or sectors, which
+    /// [`MaskingCell`]'s 16-bit indices cannot hold (a table that size
+    /// would take 16 GiB).
     pub fn with_direction_rings(grid: NdfGrid, n_theta_k: usize) -> Self {
         let n_theta_k = n_theta_k.max(2);
+        assert!(
+            n_theta_k <= u16::MAX as usize && grid.n_phi <= u16::MAX as u32,
+            "masking tables of {n_theta_k} rings by {} sectors are past 16-bit indices",
+            grid.n_phi
+        );
         let (nt, np) = (grid.n_theta as usize, grid.n_phi as usize);
         let n_freq = np / 2 + 1;
         let mut planner = RealFftPlanner::<f32>::new();
@@ -165,16 +174,20 @@ impl MaskingOperator {
 /// two rings and sectors around it, the fractions toward the second, and
 /// its `z`. It depends on the operator's grid only, so a direction read
 /// under many tables of one operator (a sample's `sigma(i)` at every
-/// masking iteration) is located once.
+/// masking iteration) is located once. 16 bytes: pooling keeps one for
+/// each of up to some 38 million samples; the second sector is the one
+/// after the first, modulo the table's sectors, and the operator's rings
+/// and sectors fit in 16 bits ([`MaskingOperator::with_direction_rings`]).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct MaskingCell {
-    j0: u32,
-    q0: u32,
-    q1: u32,
+    j0: u16,
+    q0: u16,
     fj: f32,
     fq: f32,
     z: f32,
 }
+
+const _: () = assert!(std::mem::size_of::<MaskingCell>() == 16);
 
 impl MaskingOperator {
     /// Where `v` falls in this operator's tables ([`MaskingTable::projected_area_at`]).
@@ -197,8 +210,7 @@ fn locate(n_theta_k: usize, n_phi: usize, v: Vec3) -> MaskingCell {
     let yf = frame::floor(y);
     let fq = y - yf;
     let q0 = wrap(yf as i64, n_phi);
-    let q1 = if q0 + 1 == n_phi { 0 } else { q0 + 1 };
-    MaskingCell { j0: j0 as u32, q0: q0 as u32, q1: q1 as u32, fj, fq, z: v.z }
+    MaskingCell { j0: j0 as u16, q0: q0 as u16, fj, fq, z: v.z }
 }
 
 /// `sigma(k)` tabulated over directions, with interpolation.
@@ -223,7 +235,8 @@ impl MaskingTable {
         if c.z <= 0.0 {
             return 1.0;
         }
-        let (j0, q0, q1, fj, fq) = (c.j0 as usize, c.q0 as usize, c.q1 as usize, c.fj, c.fq);
+        let (j0, q0, fj, fq) = (c.j0 as usize, c.q0 as usize, c.fj, c.fq);
+        let q1 = if q0 + 1 == self.n_phi { 0 } else { q0 + 1 };
         let s = |j: usize, q: usize| self.sigma[j * self.n_phi + q];
         let a = s(j0, q0) * (1.0 - fq) + s(j0, q1) * fq;
         let b = s(j0 + 1, q0) * (1.0 - fq) + s(j0 + 1, q1) * fq;
