@@ -43,6 +43,23 @@ enum Bit {
     OsAvxState,
 }
 
+impl Bit {
+    /// A report with this feature's bits set and no other: the one place
+    /// that says which register holds which feature.
+    #[inline(always)]
+    const fn mask(self) -> CpuReport {
+        let mut r = CpuReport { leaf1_ecx: 0, leaf7_ebx: 0, ext_ecx: 0, xcr0: 0 };
+        match self {
+            Bit::Leaf1Ecx(b) => r.leaf1_ecx = 1 << b,
+            Bit::Leaf7Ebx(b) => r.leaf7_ebx = 1 << b,
+            Bit::ExtEcx(b) => r.ext_ecx = 1 << b,
+            // XMM (bit 1) and YMM (bit 2) state.
+            Bit::OsAvxState => r.xcr0 = 0b110,
+        }
+        r
+    }
+}
+
 /// What `x86-64-v3` adds to `x86-64-v2` (the psABI's list; a processor
 /// with these has v2's SSE4.2 and POPCNT too), with their `cpuid` bits
 /// (Intel's Software Developer's Manual, volume 2A; AMD's `cpuid`
@@ -78,13 +95,11 @@ impl CpuReport {
     /// [`refuse`] runs it where the build's instructions may be missing.
     #[inline(always)]
     pub fn has(&self, f: Feature) -> bool {
-        match f.at {
-            Bit::Leaf1Ecx(b) => self.leaf1_ecx & (1 << b) != 0,
-            Bit::Leaf7Ebx(b) => self.leaf7_ebx & (1 << b) != 0,
-            Bit::ExtEcx(b) => self.ext_ecx & (1 << b) != 0,
-            // XMM (bit 1) and YMM (bit 2) state.
-            Bit::OsAvxState => self.xcr0 & 0b110 == 0b110,
-        }
+        let m = f.at.mask();
+        self.leaf1_ecx & m.leaf1_ecx == m.leaf1_ecx
+            && self.leaf7_ebx & m.leaf7_ebx == m.leaf7_ebx
+            && self.ext_ecx & m.ext_ecx == m.ext_ecx
+            && self.xcr0 & m.xcr0 == m.xcr0
     }
 
     /// This processor's report ([`registers`]).
@@ -101,12 +116,11 @@ const REQUIRED: CpuReport = {
     let mut k = 0;
     while k < FEATURES.len() {
         if FEATURES[k].compiled {
-            match FEATURES[k].at {
-                Bit::Leaf1Ecx(b) => r.leaf1_ecx |= 1 << b,
-                Bit::Leaf7Ebx(b) => r.leaf7_ebx |= 1 << b,
-                Bit::ExtEcx(b) => r.ext_ecx |= 1 << b,
-                Bit::OsAvxState => r.xcr0 |= 0b110,
-            }
+            let m = FEATURES[k].at.mask();
+            r.leaf1_ecx |= m.leaf1_ecx;
+            r.leaf7_ebx |= m.leaf7_ebx;
+            r.ext_ecx |= m.ext_ecx;
+            r.xcr0 |= m.xcr0;
         }
         k += 1;
     }
@@ -288,13 +302,7 @@ mod tests {
         let none = CpuReport::default();
         assert!(FEATURES.iter().all(|&f| !none.has(f)));
         for f in FEATURES {
-            let mut r = CpuReport::default();
-            match f.at {
-                Bit::Leaf1Ecx(b) => r.leaf1_ecx = 1 << b,
-                Bit::Leaf7Ebx(b) => r.leaf7_ebx = 1 << b,
-                Bit::ExtEcx(b) => r.ext_ecx = 1 << b,
-                Bit::OsAvxState => r.xcr0 = 0b111,
-            }
+            let r = f.at.mask();
             let has: Vec<_> = FEATURES.iter().filter(|&&g| r.has(g)).map(|g| g.name).collect();
             assert_eq!(has, [f.name], "{f:?}");
         }
@@ -314,13 +322,15 @@ mod tests {
         assert!(!lacks(full));
         assert_eq!(lacks(CpuReport::default()), FEATURES.iter().any(|f| f.compiled));
         for f in FEATURES {
-            let mut r = full;
-            match f.at {
-                Bit::Leaf1Ecx(b) => r.leaf1_ecx &= !(1 << b),
-                Bit::Leaf7Ebx(b) => r.leaf7_ebx &= !(1 << b),
-                Bit::ExtEcx(b) => r.ext_ecx &= !(1 << b),
-                Bit::OsAvxState => r.xcr0 &= !0b100,
-            }
+            let m = f.at.mask();
+            let r = CpuReport {
+                leaf1_ecx: !m.leaf1_ecx,
+                leaf7_ebx: !m.leaf7_ebx,
+                ext_ecx: !m.ext_ecx,
+                // Of the OS's state bits, the AVX one only (the SSE one
+                // under it kept).
+                xcr0: !(m.xcr0 & 0b100),
+            };
             assert_eq!(lacks(r), f.compiled, "{f:?}");
             assert_eq!(lacks(r), rust_lacks(r), "{f:?}");
         }
