@@ -134,32 +134,33 @@ pub fn synthetic_through(
         })
         .collect();
     for q in 0..nl {
-        let (rho, fl) = store.row_mut(q);
-        rho.par_iter_mut().zip(fl.par_iter_mut()).enumerate().for_each(|(p, (r, f))| {
-            if ctx.pixels[p].is_none() {
-                *f = flag::OUT_OF_VIEW;
-                return;
-            }
-            let Some(s) = ctx.sample(p, q) else {
-                *f = flag::DIM;
-                return;
-            };
-            if s.occluded {
-                *f = flag::OCCLUDED;
-                return;
-            }
-            let v = points[p].eval(s.i, ctx.view[p]);
-            let out = [v.x, v.y, v.z];
-            // The fitter's noise model (`fit::points::gather`): rho = DN k.
-            let k = s.to_rho / (EXPOSURE_S * 1.0);
-            let h = (q * n + p) as u64 * 3;
-            *r = std::array::from_fn(|c| {
-                let sd = (k * k * READ_NOISE_DN * READ_NOISE_DN + k * out[c].max(0.0) / E_PER_DN).sqrt();
-                // Uniform on [-sqrt 3, sqrt 3]: unit variance.
-                let e = if noise { sd * 1.732 * unit_noise(h + c as u64) } else { 0.0 };
-                f16::from_f32(out[c] + e)
+        store.edit_row(q, |rho, fl| {
+            rho.par_iter_mut().zip(fl.par_iter_mut()).enumerate().for_each(|(p, (r, f))| {
+                if ctx.pixels[p].is_none() {
+                    *f = flag::OUT_OF_VIEW;
+                    return;
+                }
+                let Some(s) = ctx.sample(p, q) else {
+                    *f = flag::DIM;
+                    return;
+                };
+                if s.occluded {
+                    *f = flag::OCCLUDED;
+                    return;
+                }
+                let v = points[p].eval(s.i, ctx.view[p]);
+                let out = [v.x, v.y, v.z];
+                // The fitter's noise model (`fit::points::gather`): rho = DN k.
+                let k = s.to_rho / (EXPOSURE_S * 1.0);
+                let h = (q * n + p) as u64 * 3;
+                *r = std::array::from_fn(|c| {
+                    let sd = (k * k * READ_NOISE_DN * READ_NOISE_DN + k * out[c].max(0.0) / E_PER_DN).sqrt();
+                    // Uniform on [-sqrt 3, sqrt 3]: unit variance.
+                    let e = if noise { sd * 1.732 * unit_noise(h + c as u64) } else { 0.0 };
+                    f16::from_f32(out[c] + e)
+                });
+                *f = 0;
             });
-            *f = 0;
         });
     }
     Ok(Synthetic { ctx, store, material })

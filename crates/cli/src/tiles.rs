@@ -34,7 +34,7 @@ use crate::progress::{Event, Reporter};
 pub const TILES_DIR: &str = "tiles";
 
 const MAGIC: &[u8; 8] = b"REFLTILE";
-const VERSION: u32 = 1;
+const VERSION: u32 = 2;
 /// A header longer than this is not one of ours.
 const MAX_HEADER: u32 = 1 << 20;
 
@@ -309,12 +309,19 @@ fn encode(w: &mut impl Write, header: &TileHeader, t: &TileFit) -> std::io::Resu
     w.write_all(&VERSION.to_le_bytes())?;
     w.write_all(&(json.len() as u32).to_le_bytes())?;
     w.write_all(&json)?;
-    let (rho, flags) = t.store.raw();
-    put(w, rho, |x: [f16; 3]| {
-        let [a, b, c] = x.map(|v| v.to_bits().to_le_bytes());
-        [a[0], a[1], b[0], b[1], c[0], c[1]]
-    })?;
-    w.write_all(flags)?;
+    // Each light's flags, then each light's reflectances (zero where a
+    // flag rules one out): read in this order, a sample store never holds
+    // a reflectance its flag rules out.
+    let s = &t.store;
+    for q in 0..s.n_lights() {
+        w.write_all(s.flag_row(q))?;
+    }
+    for q in 0..s.n_lights() {
+        put(w, &s.rho_row(q), |x: [f16; 3]| {
+            let [a, b, c] = x.map(|v| v.to_bits().to_le_bytes());
+            [a[0], a[1], b[0], b[1], c[0], c[1]]
+        })?;
+    }
     let m = &t.maps;
     put(w, &f32s(&m.kd), f32::to_le_bytes)?;
     put(w, &f32s(&m.ks), f32::to_le_bytes)?;
@@ -426,15 +433,15 @@ impl Opened {
         let cells = h.grid.len();
         let short = |e: std::io::Error| damaged(format!("truncated: {e}"));
         for q in 0..h.lights {
+            let row = take(&mut r, n, |b: [u8; 1]| b[0]).map_err(short)?;
+            store.edit_row(q, |_, flags| flags[at..at + n].copy_from_slice(&row));
+        }
+        for q in 0..h.lights {
             let row = take(&mut r, n, |b: [u8; 6]| {
                 [[b[0], b[1]], [b[2], b[3]], [b[4], b[5]]].map(|x| f16::from_bits(u16::from_le_bytes(x)))
             })
             .map_err(short)?;
-            store.row_mut(q).0[at..at + n].copy_from_slice(&row);
-        }
-        for q in 0..h.lights {
-            let row = take(&mut r, n, |b: [u8; 1]| b[0]).map_err(short)?;
-            store.row_mut(q).1[at..at + n].copy_from_slice(&row);
+            store.edit_row(q, |rho, _| rho[at..at + n].copy_from_slice(&row));
         }
         let kd = triples(take(&mut r, 3 * n, f32::from_le_bytes).map_err(short)?);
         let ks = triples(take(&mut r, 3 * n, f32::from_le_bytes).map_err(short)?);
@@ -613,11 +620,14 @@ mod tests {
         let n = points.len();
         let mut store = SampleStore::for_points(points.clone(), lights);
         for q in 0..lights {
-            let (rho, flags) = store.row_mut(q);
-            for i in 0..n {
-                rho[i] = [(q * n + i) as f32, 0.5, -1.0].map(f16::from_f32);
-                flags[i] = ((q + i) % 7) as u8;
-            }
+            store.edit_row(q, |rho, flags| {
+                for i in 0..n {
+                    flags[i] = ((q + i) % 7) as u8;
+                    if flags[i] & fit::samples::flag::NO_REFLECTANCE == 0 {
+                        rho[i] = [(q * n + i) as f32, 0.5, -1.0].map(f16::from_f32);
+                    }
+                }
+            });
         }
         let mut tables = TableSet::new(grid, n);
         let mut t = brdf::ndf::NdfTable::zeros(grid);

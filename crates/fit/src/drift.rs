@@ -339,8 +339,7 @@ impl DriftTrack {
         for (q, f) in factors.iter().enumerate() {
             let Some(f) = f else { continue };
             let k = 1.0 / f;
-            let (rho, _) = store.row_mut(q);
-            for r in rho.iter_mut() {
+            for r in store.held_rho_mut(q) {
                 *r = r.map(|x| {
                     half::f16::from_f32((x.to_f32() * k).clamp(-crate::ingest::MAX_RHO, crate::ingest::MAX_RHO))
                 });

@@ -179,49 +179,50 @@ impl<'a> Ingest<'a> {
             .map(|px| px.map_or([0.0; 3], |px| self.dark_at(shot.exposure, px)))
             .collect();
         let peak = &self.peak_irradiance;
-        let (rho_row, flag_row) = self.store.row_mut(q);
-        rho_row.par_iter_mut().zip(flag_row.par_iter_mut()).enumerate().for_each(|(i, (rho, fl))| {
-            let p = first + i;
-            let Some(px) = ctx.pixels[p] else {
-                *fl = flag::OUT_OF_VIEW;
-                return;
-            };
-            let Some(g) = ctx.sample(p, q) else {
-                *fl = flag::DIM;
-                return;
-            };
-            if g.occluded {
-                *fl = flag::OCCLUDED;
-                return;
-            }
-            if g.irradiance < DIM_FRACTION * peak[i] {
-                *fl = flag::DIM;
-                return;
-            }
-            let Some((v, clipped)) = img.sample(px.x, px.y) else {
-                *fl = flag::OUT_OF_VIEW;
-                return;
-            };
-            // Keep the longest unclipped exposure (module docs).
-            let prev_missing = *fl & flag::MISSING != 0;
-            let prev_sat = *fl & flag::SATURATED != 0;
-            let prev_e = SampleStore::exposure_of(*fl) as usize;
-            let longer = exposures[e] > exposures[prev_e.min(exposures.len() - 1)];
-            let take = prev_missing
-                || (prev_sat && !clipped)
-                || (!prev_sat && !clipped && longer)
-                || (prev_sat && clipped && !longer);
-            if !take {
-                return;
-            }
-            let d = darks[i];
-            let k = scale * g.to_rho;
-            let r = [(v[0] - d[0]) * k, (v[1] - d[1]) * k, (v[2] - d[2]) * k];
-            // A reflectance beyond f16's range means the calibration does
-            // not describe this rig; such a sample is unusable, not infinite.
-            let out_of_range = r.iter().any(|x| !(x.abs() < MAX_RHO));
-            *rho = r.map(|x| f16::from_f32(x.clamp(-MAX_RHO, MAX_RHO)));
-            *fl = ((e as u8) << flag::EXPOSURE_SHIFT) | if clipped || out_of_range { flag::SATURATED } else { 0 };
+        self.store.edit_row(q, |rho_row, flag_row| {
+            rho_row.par_iter_mut().zip(flag_row.par_iter_mut()).enumerate().for_each(|(i, (rho, fl))| {
+                let p = first + i;
+                let Some(px) = ctx.pixels[p] else {
+                    *fl = flag::OUT_OF_VIEW;
+                    return;
+                };
+                let Some(g) = ctx.sample(p, q) else {
+                    *fl = flag::DIM;
+                    return;
+                };
+                if g.occluded {
+                    *fl = flag::OCCLUDED;
+                    return;
+                }
+                if g.irradiance < DIM_FRACTION * peak[i] {
+                    *fl = flag::DIM;
+                    return;
+                }
+                let Some((v, clipped)) = img.sample(px.x, px.y) else {
+                    *fl = flag::OUT_OF_VIEW;
+                    return;
+                };
+                // Keep the longest unclipped exposure (module docs).
+                let prev_missing = *fl & flag::MISSING != 0;
+                let prev_sat = *fl & flag::SATURATED != 0;
+                let prev_e = SampleStore::exposure_of(*fl) as usize;
+                let longer = exposures[e] > exposures[prev_e.min(exposures.len() - 1)];
+                let take = prev_missing
+                    || (prev_sat && !clipped)
+                    || (!prev_sat && !clipped && longer)
+                    || (prev_sat && clipped && !longer);
+                if !take {
+                    return;
+                }
+                let d = darks[i];
+                let k = scale * g.to_rho;
+                let r = [(v[0] - d[0]) * k, (v[1] - d[1]) * k, (v[2] - d[2]) * k];
+                // A reflectance beyond f16's range means the calibration does
+                // not describe this rig; such a sample is unusable, not infinite.
+                let out_of_range = r.iter().any(|x| !(x.abs() < MAX_RHO));
+                *rho = r.map(|x| f16::from_f32(x.clamp(-MAX_RHO, MAX_RHO)));
+                *fl = ((e as u8) << flag::EXPOSURE_SHIFT) | if clipped || out_of_range { flag::SATURATED } else { 0 };
+            });
         });
         self.frames += 1;
     }

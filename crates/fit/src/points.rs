@@ -1,10 +1,10 @@
 //! Fitting every point, in parallel, into compact per-point maps.
 
-use brdf::ndf::{MaskingOperator, TableSet};
+use brdf::ndf::{MaskingOperator, TableSet, TableSlot};
 use rayon::prelude::*;
 
 use crate::context::FitContext;
-use crate::partial::{PointSamples, PointStats, Sample, Scratch, fit_point, point_flag, refit_point};
+use crate::partial::{PointFit, PointSamples, PointStats, Sample, Scratch, fit_point, point_flag, refit_point};
 use crate::samples::{SampleStore, flag};
 use crate::settings::FitSettings;
 
@@ -86,8 +86,9 @@ pub fn gather_choice_held_out(ctx: &FitContext, store: &SampleStore, p: usize, s
     gather_where(ctx, store, p, settings, |q| settings.choice_holds_out(&ctx.inputs.plan, q))
 }
 
-/// How many lights ahead [`gather_where`] asks for a point's samples
-/// ([`SampleStore::prefetch`]).
+/// How many lights ahead [`gather_where`] asks for a point's flags and
+/// their places ([`SampleStore::prefetch`]); it asks for the reflectances
+/// half as far ahead, where those places have arrived.
 const PREFETCH_LIGHTS: usize = 8;
 
 fn gather_where(
@@ -108,6 +109,7 @@ fn gather_where(
     ps.samples.reserve(ctx.n_lights());
     for q in 0..ctx.n_lights() {
         store.prefetch(q + PREFETCH_LIGHTS, p);
+        store.prefetch_sample(q + PREFETCH_LIGHTS / 2, p);
         if !keep(q) {
             continue;
         }
@@ -229,19 +231,52 @@ impl SampleNoise {
     }
 }
 
+/// What [`fit_points`] and [`refit_completed`] keep of a point's fit once
+/// its table is in its place in the maps' set. Each table goes there as
+/// soon as its point is fitted: held until every point had been fitted,
+/// the `f32` tables took 12 KB a point (7.9 GB at 800 x 800).
+struct Placed {
+    kd: [f32; 3],
+    ks: [f32; 3],
+    eta: f32,
+    flags: u32,
+    stats: PointStats,
+}
+
+impl Placed {
+    fn place(f: PointFit, slot: &mut TableSlot) -> Self {
+        slot.set(&f.table);
+        Self::without_table(f)
+    }
+
+    fn without_table(f: PointFit) -> Self {
+        Placed { kd: f.kd, ks: f.ks, eta: f.eta, flags: f.flags, stats: f.stats }
+    }
+}
+
+/// Whether `t` is a table as [`TableSet::new`] makes it.
+fn is_blank(t: &brdf::ndf::NdfTable) -> bool {
+    t.values().iter().all(|v| v.to_bits() == 0) && t.coverage().count() == 0
+}
+
 /// Fit every point the store holds (parallel over points): the whole grid,
 /// or one tile of it (the maps' entry `i` is then the tile's `i`-th point).
 pub fn fit_points(ctx: &FitContext, store: &SampleStore, settings: &FitSettings, op: &MaskingOperator) -> PointMaps {
     let n = store.points().len();
     ctx.progress.begin(crate::FitStage::Points, n as u64);
-    let fits: Vec<_> = store
+    let mut tables = TableSet::new(settings.grid, n);
+    let slots: Vec<TableSlot> = tables.slots().collect();
+    let fits: Vec<Placed> = store
         .points()
         .into_par_iter()
-        .map_init(Scratch::default, |scratch, p| {
+        .zip(slots)
+        .map_init(Scratch::default, |scratch, (p, mut slot)| {
             let ps = gather(ctx, store, p, settings);
             let f = fit_point(&ps, settings, op, scratch);
             ctx.progress.advance(1);
-            f
+            // A blank table (a point without a fit) is left unwritten, as
+            // the new set holds it, taking no memory.
+            if is_blank(&f.table) { Placed::without_table(f) } else { Placed::place(f, &mut slot) }
         })
         .collect();
     let mut maps = PointMaps {
@@ -249,15 +284,14 @@ pub fn fit_points(ctx: &FitContext, store: &SampleStore, settings: &FitSettings,
         ks: Vec::with_capacity(n),
         eta: Vec::with_capacity(n),
         flags: Vec::with_capacity(n),
-        tables: TableSet::new(settings.grid, n),
+        tables,
         stats: Vec::with_capacity(n),
     };
-    for (p, f) in fits.into_iter().enumerate() {
+    for f in fits {
         maps.kd.push(f.kd);
         maps.ks.push(f.ks);
         maps.eta.push(f.eta);
         maps.flags.push(f.flags);
-        maps.tables.set(p, &f.table);
         maps.stats.push(f.stats);
     }
     maps
@@ -275,26 +309,24 @@ pub fn refit_completed(
     settings: &FitSettings,
     op: &MaskingOperator,
 ) -> usize {
-    let todo: Vec<usize> = (0..maps.len()).filter(|&p| added.get(p).copied().unwrap_or(false)).collect();
+    let todo: Vec<(usize, TableSlot)> =
+        maps.tables.slots().enumerate().filter(|&(p, _)| added.get(p).copied().unwrap_or(false)).collect();
     ctx.progress.begin(crate::FitStage::Refit, todo.len() as u64);
-    let completed = &maps.tables;
-    let fits: Vec<_> = todo
-        .par_iter()
-        .map_init(Scratch::default, |scratch, &p| {
+    let fits: Vec<(usize, Placed)> = todo
+        .into_par_iter()
+        .map_init(Scratch::default, |scratch, (p, mut slot)| {
             let ps = gather(ctx, store, p, settings);
-            let table = completed.get(p);
-            let f = refit_point(&ps, settings, op, scratch, &table);
+            let f = refit_point(&ps, settings, op, scratch, &slot.get());
             ctx.progress.advance(1);
-            f
+            (p, Placed::place(f, &mut slot))
         })
         .collect();
-    for (&p, f) in todo.iter().zip(fits) {
+    for &(p, ref f) in &fits {
         maps.kd[p] = f.kd;
         maps.ks[p] = f.ks;
         maps.eta[p] = f.eta;
         maps.flags[p] = f.flags | point_flag::SYNTHESIZED;
-        maps.tables.set(p, &f.table);
         maps.stats[p] = f.stats;
     }
-    todo.len()
+    fits.len()
 }

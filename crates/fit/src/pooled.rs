@@ -98,7 +98,7 @@
 //! points carry [`point_flag::POOLED`].
 
 use brdf::fresnel;
-use brdf::ndf::{Coverage, MaskingCell, MaskingOperator, MaskingTable, NdfGrid, NdfTable, TableSet};
+use brdf::ndf::{Coverage, MaskingCell, MaskingOperator, MaskingTable, NdfGrid, NdfTable};
 use glam::Vec3;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -279,9 +279,9 @@ impl Source<'_> {
 type Fetch<'a> = dyn Fn(usize) -> Member + Sync + 'a;
 
 /// Cluster, pool and choose; replaces the pooled points' tables and
-/// specular scales in `maps`. `observed` holds the points' tables before
-/// synthesis (whose coverage is what their own samples observed) when
-/// `maps` holds completed ones. The clusters are found top down (the
+/// specular scales in `maps`. `observed` holds the cells each point's own
+/// samples observed (its table's coverage before synthesis) when `maps`
+/// holds completed tables. The clusters are found top down (the
 /// module notes, step 1).
 pub fn pool(
     ctx: &FitContext,
@@ -290,7 +290,7 @@ pub fn pool(
     settings: &FitSettings,
     pool: &PoolSettings,
     op: &MaskingOperator,
-    observed: Option<&TableSet>,
+    observed: Option<&[u32]>,
 ) -> PoolStats {
     let eligible: Vec<usize> = (0..maps.len()).filter(|&p| maps.flags[p] & point_flag::NO_SPECULAR == 0).collect();
     if eligible.len() < MIN_MEMBERS {
@@ -938,7 +938,7 @@ fn choose(
     part: &[usize],
     first: usize,
     settled: &Settled,
-    own_observed: Option<&TableSet>,
+    own_observed: Option<&[u32]>,
 ) -> Vec<(usize, NdfTable, f32)> {
     let (op, est, reference) = (src.op, &settled.est, settled.reference.as_ref());
     part.par_iter()
@@ -967,7 +967,7 @@ fn choose(
             let k_joined = pooled_fit.scale()?;
             let chi2_pooled = pooled_fit.chi2(k_joined);
             let chi2_own = Fit::own(mb, &own).chi2(mb.k_s);
-            let cells = own_observed.map_or_else(|| own.coverage().count(), |o| o.get(mb.p).coverage().count());
+            let cells = own_observed.map_or_else(|| own.coverage().count(), |o| o[mb.p] as usize);
             let k_own = cells.min(mb.samples.len()) as f64;
             (chi2_pooled + 2.0 <= chi2_own + 2.0 * k_own).then_some((mb.p, joined, k_joined))
         })

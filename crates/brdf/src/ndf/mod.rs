@@ -29,7 +29,7 @@ pub use ggx::Ggx;
 pub use masking::{MaskingCell, MaskingOperator, MaskingTable};
 pub use mixture::Mixture;
 pub use power_cosine::PowerCosine;
-pub use set::{TableSet, TableSlot};
+pub use set::{PackedTables, TableSet, TableSlot};
 pub use sheen::Sheen;
 pub use table::{Bilinear, Coverage, NdfGrid, NdfTable, TableError, bit, rotation_sources, split_shift, wrap};
 pub use tabulated::TabulatedNdf;

@@ -5,6 +5,7 @@
 
 use half::f16;
 use half::slice::HalfFloatSliceExt;
+use half::vec::HalfBitsVecExt;
 use serde::{Deserialize, Serialize};
 
 use super::{Coverage, NdfGrid, NdfTable};
@@ -19,9 +20,31 @@ pub struct TableSet {
 }
 
 impl TableSet {
+    /// `len` empty tables (every value +0, nothing covered). The memory is
+    /// asked of the system zeroed, so a table never written takes none: a
+    /// refit of a quarter of the points holds a quarter of the tables.
     pub fn new(grid: NdfGrid, len: usize) -> Self {
         let cells = grid.len();
-        Self { grid, len, values: vec![f16::ZERO; len * cells], coverage: vec![0; len * cells.div_ceil(64)] }
+        let values: Vec<u16> = vec![0; len * cells];
+        Self { grid, len, values: values.reinterpret_into(), coverage: vec![0; len * cells.div_ceil(64)] }
+    }
+
+    /// Whether table `k` is as [`TableSet::new`] makes it (every value +0,
+    /// nothing covered).
+    pub fn is_blank(&self, k: usize) -> bool {
+        let cells = self.grid.len();
+        self.values[k * cells..(k + 1) * cells].iter().all(|v| v.to_bits() == 0)
+            && self.coverage_words(k).iter().all(|&w| w == 0)
+    }
+
+    /// The same set as `clone` makes, writing only the tables that are not
+    /// blank ([`TableSet::new`]: a blank one takes no memory).
+    pub fn clone_written(&self) -> TableSet {
+        let mut out = TableSet::new(self.grid, self.len);
+        for k in (0..self.len).filter(|&k| !self.is_blank(k)) {
+            out.copy_from(k, self);
+        }
+        out
     }
 
     pub fn grid(&self) -> NdfGrid {
@@ -72,6 +95,15 @@ impl TableSet {
         &self.coverage[k * w..(k + 1) * w]
     }
 
+    /// The cells table `k` covers as [`TableSet::get`] reads it: none where
+    /// it reads as all zero.
+    pub fn covered_cells(&self, k: usize) -> usize {
+        match self.cells(k) {
+            Some(_) => Coverage::from_words(self.grid.len(), self.coverage_words(k)).count(),
+            None => 0,
+        }
+    }
+
     /// Store table `k`.
     pub fn set(&mut self, k: usize, t: &NdfTable) {
         let (cells, w) = (self.grid.len(), self.words());
@@ -111,6 +143,84 @@ impl TableSet {
             values,
             coverage,
         })
+    }
+}
+
+/// A [`TableSet`] kept in less memory while nothing reads its values: each
+/// table's values at its covered cells only where all its others are zero
+/// (+0: a per-point fit's table ends at its observed region, about half
+/// the grid at the presets' plans), and all of them otherwise. Packing and
+/// unpacking move the values within one allocation, so neither holds the
+/// tables twice, and give the set back bit for bit.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PackedTables {
+    grid: NdfGrid,
+    len: usize,
+    coverage: Vec<u64>,
+    /// Tables kept whole: a value beyond their coverage is not +0.
+    whole: Vec<bool>,
+    values: Vec<f16>,
+}
+
+impl TableSet {
+    /// The set in less memory ([`PackedTables`]).
+    pub fn pack(self) -> PackedTables {
+        let TableSet { grid, len, mut values, coverage } = self;
+        let (cells, w) = (grid.len(), grid.len().div_ceil(64));
+        let covered = |words: &[u64], c: usize| words[c / 64] >> (c % 64) & 1 == 1;
+        let mut whole = Vec::with_capacity(len);
+        let mut at = 0;
+        for k in 0..len {
+            let words = &coverage[k * w..(k + 1) * w];
+            let table = k * cells..(k + 1) * cells;
+            let all = values[table.clone()].iter().enumerate().any(|(c, v)| v.to_bits() != 0 && !covered(words, c));
+            whole.push(all);
+            // `at` never passes `table.start`: each table keeps at most
+            // its own cells, so a value moves only towards the front.
+            for c in (0..cells).filter(|&c| all || covered(words, c)) {
+                values[at] = values[table.start + c];
+                at += 1;
+            }
+        }
+        values.truncate(at);
+        values.shrink_to_fit();
+        PackedTables { grid, len, coverage, whole, values }
+    }
+}
+
+impl PackedTables {
+    pub fn bytes(&self) -> usize {
+        self.values.len() * 2 + self.coverage.len() * 8 + self.whole.len()
+    }
+
+    /// The set as it was packed, bit for bit.
+    pub fn unpack(self) -> TableSet {
+        let PackedTables { grid, len, coverage, whole, mut values } = self;
+        let (cells, w) = (grid.len(), grid.len().div_ceil(64));
+        let covered = |words: &[u64], c: usize| words[c / 64] >> (c % 64) & 1 == 1;
+        let kept =
+            |k: usize| if whole[k] { cells } else { (0..cells).filter(|&c| covered(&coverage[k * w..], c)).count() };
+        let mut end = values.len();
+        values.resize(len * cells, f16::ZERO);
+        // From the last table's last cell back: a value moves only towards
+        // the back, onto a place already read or never packed.
+        for k in (0..len).rev() {
+            let words = &coverage[k * w..(k + 1) * w];
+            let start = end - kept(k);
+            let mut from = end;
+            for c in (0..cells).rev() {
+                let to = k * cells + c;
+                if whole[k] || covered(words, c) {
+                    from -= 1;
+                    values[to] = values[from];
+                } else {
+                    values[to] = f16::ZERO;
+                }
+            }
+            debug_assert_eq!(from, start);
+            end = start;
+        }
+        TableSet { grid, len, values, coverage }
     }
 }
 
@@ -231,5 +341,70 @@ mod tests {
         assert_eq!(tc[words..2 * words], fc[words..2 * words]);
         assert!(tv[..cells].iter().chain(&tv[2 * cells..]).all(|x| x.to_bits() == 0));
         assert!(tc[..words].iter().chain(&tc[2 * words..]).all(|&w| w == 0));
+    }
+
+    /// Packed and unpacked, a set is the same bit for bit: tables zero
+    /// beyond their coverage (kept at their covered cells), tables with a
+    /// value there (a -0, a NaN, a positive value: kept whole), empty and
+    /// full coverage, stray bits past the grid's last cell, on a grid of
+    /// whole and part words. Only what is kept is held.
+    #[test]
+    fn a_packed_set_unpacks_bit_for_bit() {
+        for grid in [NdfGrid::new(4, 20).unwrap(), NdfGrid::new(8, 16).unwrap()] {
+            let (cells, words) = (grid.len(), grid.len().div_ceil(64));
+            let len = 9;
+            let mut coverage: Vec<u64> =
+                (0..(len * words) as u64).map(|w| w.wrapping_mul(0x9E37_79B9_7F4A_7C15)).collect();
+            coverage[..words].fill(0);
+            coverage[words..2 * words].fill(u64::MAX);
+            let covered = |k: usize, c: usize| coverage[k * words + c / 64] >> (c % 64) & 1 == 1;
+            let mut values = vec![f16::ZERO; len * cells];
+            for k in 0..len {
+                for c in (0..cells).filter(|&c| covered(k, c)) {
+                    values[k * cells + c] = f16::from_f32((k * cells + c) as f32 * 0.125 - 3.0);
+                }
+            }
+            let outside = |k: usize| (0..cells).find(|&c| !covered(k, c)).unwrap();
+            values[4 * cells + outside(4)] = f16::NEG_ZERO;
+            values[5 * cells + outside(5)] = f16::NAN;
+            values[6 * cells + outside(6)] = f16::from_f32(0.5);
+            values[7 * cells + 1] = f16::INFINITY;
+            let set = TableSet::from_raw(grid, len, values, coverage.clone()).unwrap();
+            let packed = set.clone().pack();
+            let kept: usize = (0..len)
+                .map(|k| if (4..=6).contains(&k) { cells } else { (0..cells).filter(|&c| covered(k, c)).count() })
+                .sum();
+            assert_eq!(packed.bytes(), kept * 2 + coverage.len() * 8 + len, "{grid:?}");
+            assert!(packed.bytes() < set.bytes());
+            let back = packed.unpack();
+            let bits = |s: &TableSet| s.raw().0.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&back), bits(&set), "{grid:?}");
+            assert_eq!(back.raw().1, set.raw().1);
+            assert_eq!((back.grid(), back.len()), (grid, len));
+        }
+    }
+
+    /// A copy that writes only the tables that are not blank is the set
+    /// `clone` makes: blank tables, a -0, coverage alone, values alone.
+    #[test]
+    fn a_copy_of_the_written_tables_is_the_clone() {
+        let grid = NdfGrid::new(4, 20).unwrap();
+        let (cells, words) = (grid.len(), grid.len().div_ceil(64));
+        let len = 6;
+        let mut values = vec![f16::ZERO; len * cells];
+        let mut coverage = vec![0u64; len * words];
+        values[cells + 7] = f16::NEG_ZERO;
+        coverage[2 * words + 1] = 1 << 5;
+        values[3 * cells + cells - 1] = f16::from_f32(0.75);
+        values[5 * cells] = f16::NAN;
+        coverage[5 * words] = 3;
+        let set = TableSet::from_raw(grid, len, values, coverage).unwrap();
+        let blank: Vec<bool> = (0..len).map(|k| set.is_blank(k)).collect();
+        assert_eq!(blank, [true, false, false, false, true, false]);
+        let copy = set.clone_written();
+        let bits = |s: &TableSet| s.raw().0.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&copy), bits(&set));
+        assert_eq!(copy.raw().1, set.raw().1);
+        assert!((0..len).all(|k| TableSet::new(grid, len).is_blank(k)));
     }
 }

@@ -204,7 +204,9 @@ pub fn synthesize_watched(
     let grid = input.grid();
     let points: Vec<usize> = (0..input.len()).filter(|&p| eligible.get(p).copied().unwrap_or(false)).collect();
     progress.begin(crate::FitStage::Synthesis, (points.len() * s.passes.max(1) as usize) as u64);
-    let mut tables = input.clone();
+    // Synthesis writes only the eligible points' tables; a blank one (a
+    // point the choice's refit skips) stays unwritten.
+    let mut tables = input.clone_written();
     let mut mass = vec![1.0f32; input.len()];
     let mut stats = SynthStats { points: points.len(), ..SynthStats::default() };
     if points.len() < 2 {
